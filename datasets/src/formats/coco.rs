@@ -1,0 +1,117 @@
+//! COCO-style detection annotations (`images`, `annotations` with `bbox`
+//! `[x, y, width, height]` in pixels, `categories`), so that labeling tools
+//! and viewers read our data and we read theirs. Corner labels add two
+//! optional fields to an annotation: `corner_type` and `point`, the exact
+//! projected corner in image coordinates.
+
+use std::collections::HashSet;
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::bbox::BBox;
+use crate::error::{DataError, Result};
+
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct CocoDataset {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub info: Option<serde_json::Value>,
+    pub images: Vec<CocoImage>,
+    pub annotations: Vec<CocoAnnotation>,
+    pub categories: Vec<CocoCategory>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CocoImage {
+    pub id: u64,
+    pub file_name: String,
+    pub width: u32,
+    pub height: u32,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CocoAnnotation {
+    pub id: u64,
+    pub image_id: u64,
+    pub category_id: u64,
+    pub bbox: [f32; 4],
+    #[serde(default)]
+    pub area: f32,
+    #[serde(default)]
+    pub iscrowd: u8,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub corner_type: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub point: Option<[f32; 2]>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CocoCategory {
+    pub id: u64,
+    pub name: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub supercategory: Option<String>,
+}
+
+impl CocoAnnotation {
+    pub fn bbox(&self) -> BBox {
+        BBox::from_xywh(self.bbox)
+    }
+}
+
+impl CocoDataset {
+    /// The annotations of one image.
+    pub fn annotations_of(&self, image_id: u64) -> impl Iterator<Item = &CocoAnnotation> {
+        self.annotations
+            .iter()
+            .filter(move |a| a.image_id == image_id)
+    }
+
+    /// Checks ids and boxes; the message names the first offending entry.
+    pub fn validate(&self) -> Result<(), String> {
+        let mut images = HashSet::new();
+        for im in &self.images {
+            if !images.insert(im.id) {
+                return Err(format!("duplicate image id {}", im.id));
+            }
+        }
+        let categories: HashSet<u64> = self.categories.iter().map(|c| c.id).collect();
+        let mut ids = HashSet::new();
+        for a in &self.annotations {
+            if !ids.insert(a.id) {
+                return Err(format!("duplicate annotation id {}", a.id));
+            }
+            if !images.contains(&a.image_id) {
+                return Err(format!(
+                    "annotation {} refers to unknown image {}",
+                    a.id, a.image_id
+                ));
+            }
+            if !categories.contains(&a.category_id) {
+                return Err(format!(
+                    "annotation {} refers to unknown category {}",
+                    a.id, a.category_id
+                ));
+            }
+            let [_, _, w, h] = a.bbox;
+            if !a.bbox().is_finite() || w < 0.0 || h < 0.0 {
+                return Err(format!(
+                    "annotation {} has an invalid bbox {:?}",
+                    a.id, a.bbox
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+pub fn read_coco(path: &Path) -> Result<CocoDataset> {
+    let text = crate::atomic::read_text(path)?;
+    let data: CocoDataset = serde_json::from_str(&text).map_err(|e| DataError::json(path, e))?;
+    data.validate().map_err(|m| DataError::invalid(path, m))?;
+    Ok(data)
+}
+
+pub fn write_coco(path: &Path, data: &CocoDataset) -> Result<()> {
+    crate::atomic::write_json(path, data)
+}

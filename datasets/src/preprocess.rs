@@ -1,0 +1,155 @@
+//! The one preprocessing path of training and inference alike: RGB to
+//! grayscale, resize to the network size (224 x 224), Canny edges; plus the
+//! matching mapping of boxes between image and network coordinates.
+
+use image::{DynamicImage, GrayImage, imageops};
+use serde::{Deserialize, Serialize};
+
+use crate::bbox::BBox;
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PreprocessConfig {
+    /// Side of the square network input, in pixels.
+    pub size: u32,
+    /// Canny hysteresis thresholds on the Sobel gradient magnitude of the
+    /// 0..255 grayscale image (imageproc blurs with sigma 1.4 first).
+    pub canny_low: f32,
+    pub canny_high: f32,
+}
+
+impl Default for PreprocessConfig {
+    fn default() -> Self {
+        Self {
+            size: 224,
+            canny_low: 40.0,
+            canny_high: 100.0,
+        }
+    }
+}
+
+impl PreprocessConfig {
+    pub fn validate(&self) -> Result<(), String> {
+        if self.size < 16 {
+            return Err(format!("size {} is below 16 pixels", self.size));
+        }
+        let ok = self.canny_low.is_finite() && self.canny_high.is_finite() && self.canny_low >= 0.0;
+        if !ok || self.canny_low > self.canny_high {
+            return Err(format!(
+                "Canny thresholds must be finite with 0 <= low <= high (low {}, high {})",
+                self.canny_low, self.canny_high
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Grayscale, resize and Canny: the network's input image (edges 255, else 0).
+/// The config must be valid (see [`PreprocessConfig::validate`]).
+pub fn preprocess(image: &DynamicImage, config: &PreprocessConfig) -> GrayImage {
+    let gray = image.to_luma8();
+    let small = imageops::resize(
+        &gray,
+        config.size,
+        config.size,
+        imageops::FilterType::Triangle,
+    );
+    imageproc::edges::canny(&small, config.canny_low, config.canny_high)
+}
+
+/// Scale factors between an image and the square network input.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ImageToNet {
+    pub sx: f32,
+    pub sy: f32,
+}
+
+impl ImageToNet {
+    pub fn new(image_width: u32, image_height: u32, net_size: u32) -> Self {
+        Self {
+            sx: net_size as f32 / image_width as f32,
+            sy: net_size as f32 / image_height as f32,
+        }
+    }
+    pub fn to_net(&self, b: &BBox) -> BBox {
+        b.scale(self.sx, self.sy)
+    }
+    pub fn to_image(&self, b: &BBox) -> BBox {
+        b.scale(1.0 / self.sx, 1.0 / self.sy)
+    }
+    pub fn point_to_image(&self, [x, y]: [f32; 2]) -> [f32; 2] {
+        [x / self.sx, y / self.sy]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use image::{Rgb, RgbImage};
+
+    #[test]
+    fn a_square_gives_edges_on_its_outline_only() {
+        // A bright square on a dark background, 640 x 480.
+        let img = RgbImage::from_fn(640, 480, |x, y| {
+            if (200..440).contains(&x) && (120..360).contains(&y) {
+                Rgb([220, 200, 180])
+            } else {
+                Rgb([20, 30, 40])
+            }
+        });
+        let edges = preprocess(&DynamicImage::ImageRgb8(img), &PreprocessConfig::default());
+        assert_eq!(edges.dimensions(), (224, 224));
+        let map = ImageToNet::new(640, 480, 224);
+        let outline = map.to_net(&BBox::new(200.0, 120.0, 440.0, 360.0));
+        let mut on = 0;
+        for (x, y, p) in edges.enumerate_pixels() {
+            if p[0] == 0 {
+                continue;
+            }
+            on += 1;
+            let (x, y) = (x as f32 + 0.5, y as f32 + 0.5);
+            let d = [
+                (x - outline.x1).abs(),
+                (x - outline.x2).abs(),
+                (y - outline.y1).abs(),
+                (y - outline.y2).abs(),
+            ];
+            let near = d.iter().cloned().fold(f32::INFINITY, f32::min);
+            assert!(
+                near <= 2.0,
+                "edge pixel ({x}, {y}) is {near} px from the square's outline"
+            );
+        }
+        // The outline is about 2 * (84 + 112) = 392 net pixels long; a step
+        // edge comes out one to two pixels thick.
+        assert!((300..=800).contains(&on), "{on} edge pixels");
+    }
+
+    #[test]
+    fn boxes_round_trip_between_image_and_network() {
+        let map = ImageToNet::new(640, 480, 224);
+        let b = BBox::new(100.0, 50.0, 140.0, 90.0);
+        let n = map.to_net(&b);
+        assert!((n.x1 - 35.0).abs() < 1e-4 && (n.y1 - 50.0 * 224.0 / 480.0).abs() < 1e-4);
+        let back = map.to_image(&n);
+        for (a, b) in [
+            (back.x1, b.x1),
+            (back.y1, b.y1),
+            (back.x2, b.x2),
+            (back.y2, b.y2),
+        ] {
+            assert!((a - b).abs() < 1e-3);
+        }
+    }
+
+    #[test]
+    fn invalid_thresholds_are_reported() {
+        let c = PreprocessConfig {
+            canny_low: 90.0,
+            canny_high: 10.0,
+            ..Default::default()
+        };
+        assert!(c.validate().unwrap_err().contains("low"));
+        assert!(PreprocessConfig::default().validate().is_ok());
+    }
+}

@@ -1,0 +1,1 @@
+//! Detector networks and inference (filled by the detectors issue).

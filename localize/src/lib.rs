@@ -1,0 +1,1 @@
+//! Localization (filled by the localization issue).

@@ -1,0 +1,1 @@
+//! Training (filled by the detectors issue).
