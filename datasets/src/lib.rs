@@ -7,6 +7,7 @@ pub mod bbox;
 pub mod camera;
 pub mod error;
 pub mod formats;
+pub mod generate;
 pub mod math;
 pub mod preprocess;
 pub mod world;

@@ -1,0 +1,648 @@
+//! Writes the default data of the project from the synthetic world: a
+//! detection data set (images, Canny images, COCO train/test splits) and a
+//! localization sequence (images, LIDAR clouds, odometry, IMU, ground truth,
+//! calibration, corner labels), plus preview pictures.
+
+use std::path::{Path, PathBuf};
+
+use image::{DynamicImage, Rgb, RgbImage};
+use indicatif::{ProgressBar, ProgressStyle};
+use rand::rngs::ChaCha8Rng;
+use rand::{RngExt, SeedableRng};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::atomic;
+use crate::error::{DataError, Result};
+use crate::formats::{
+    self, CocoAnnotation, CocoCategory, CocoDataset, CocoImage, PcdData, Trajectory,
+};
+use crate::math::Pose3;
+use crate::preprocess::{PreprocessConfig, preprocess};
+use crate::world::labels::{CornerLabel, LabelConfig, visible_corners};
+use crate::world::layout::{Floor, mix};
+use crate::world::lidar::{LidarConfig, scan};
+use crate::world::motion::{MotionConfig, simulate_imu, simulate_odometry};
+use crate::world::render::{Lighting, render};
+use crate::world::rig::Rig;
+use crate::world::route::{Route, pose_on_floor};
+use crate::world::{World, WorldConfig};
+
+/// Everything `datagen` needs; written next to the results as `datagen.json`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DatagenConfig {
+    pub seed: u64,
+    pub world: WorldConfig,
+    pub detection: DetectionConfig,
+    pub sequence: SequenceConfig,
+    pub labels: LabelConfig,
+    pub lidar: LidarConfig,
+    pub motion: MotionConfig,
+    pub preprocess: PreprocessConfig,
+}
+
+impl Default for DatagenConfig {
+    fn default() -> Self {
+        Self {
+            seed: 7,
+            world: WorldConfig::default(),
+            detection: DetectionConfig::default(),
+            sequence: SequenceConfig::default(),
+            labels: LabelConfig::default(),
+            lidar: LidarConfig::default(),
+            motion: MotionConfig::default(),
+            preprocess: PreprocessConfig::default(),
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DetectionConfig {
+    /// Images in all; the first `train` form the training split, the rest the test split.
+    pub images: usize,
+    pub train: usize,
+}
+
+impl Default for DetectionConfig {
+    fn default() -> Self {
+        Self {
+            images: 300,
+            train: 200,
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SequenceConfig {
+    /// Robot speed along the route (the paper: 0.05 m/s).
+    pub speed_mps: f64,
+    /// Camera and LIDAR frame rate (the paper: 1 Hz).
+    pub rate_hz: f64,
+    /// Frames to record; `None` drives the whole route once.
+    pub frames: Option<usize>,
+    /// Radius of the route's turns.
+    pub turn_radius_m: f64,
+}
+
+impl Default for SequenceConfig {
+    fn default() -> Self {
+        Self {
+            speed_mps: 0.05,
+            rate_hz: 1.0,
+            frames: None,
+            turn_radius_m: 1.2,
+        }
+    }
+}
+
+impl DatagenConfig {
+    /// Checks every section; the message names the offending field.
+    pub fn validate(&self) -> Result<(), String> {
+        self.world.validate().map_err(|m| format!("world: {m}"))?;
+        self.labels.validate().map_err(|m| format!("labels: {m}"))?;
+        self.lidar.validate().map_err(|m| format!("lidar: {m}"))?;
+        self.motion.validate().map_err(|m| format!("motion: {m}"))?;
+        self.preprocess
+            .validate()
+            .map_err(|m| format!("preprocess: {m}"))?;
+        let d = &self.detection;
+        if d.train > d.images {
+            return Err(format!(
+                "detection: train split {} is larger than the {} images",
+                d.train, d.images
+            ));
+        }
+        let s = &self.sequence;
+        if !(s.speed_mps.is_finite() && s.speed_mps > 0.0 && s.speed_mps <= 5.0) {
+            return Err(format!(
+                "sequence: speed {} m/s outside (0, 5]",
+                s.speed_mps
+            ));
+        }
+        if !(s.rate_hz.is_finite() && s.rate_hz > 0.0 && s.rate_hz <= 100.0) {
+            return Err(format!("sequence: rate {} Hz outside (0, 100]", s.rate_hz));
+        }
+        if s.frames == Some(0) {
+            return Err("sequence: frames must be at least 1".into());
+        }
+        if !(s.turn_radius_m > 0.1 && s.turn_radius_m < 3.0) {
+            return Err(format!(
+                "sequence: turn radius {} m outside (0.1, 3)",
+                s.turn_radius_m
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// What a generation run produced, for the command's summary.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Summary {
+    pub detection_images: usize,
+    pub detection_labels: usize,
+    pub frames: usize,
+    pub route_length_m: f64,
+    /// Frames whose time runs past the end of the route (the robot waits there).
+    pub frames_after_route_end: usize,
+}
+
+/// Streams of the one seed, so that each part draws its own numbers.
+mod stream {
+    pub const APPEARANCE: u64 = 1;
+    pub const DETECTION: u64 = 2;
+    pub const SEQUENCE_LIGHT: u64 = 3;
+    pub const LIDAR: u64 = 4;
+    pub const ODOMETRY: u64 = 5;
+    pub const IMU: u64 = 6;
+}
+
+fn key(seed: u64, stream: u64, index: u64) -> u64 {
+    mix(mix(seed ^ stream.wrapping_mul(0x9e37_79b9)) ^ index)
+}
+
+fn progress(len: usize, what: &str) -> ProgressBar {
+    let bar = ProgressBar::new(len as u64);
+    bar.set_style(
+        ProgressStyle::with_template("{msg:>12} [{bar:40}] {pos}/{len} ({eta})")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    bar.set_message(what.to_string());
+    bar
+}
+
+/// Generates the detection data set into `out/detection` and the sequence
+/// into `out/sequence`, and previews into `out/preview`.
+pub fn generate(out: &Path, config: &DatagenConfig) -> Result<Summary> {
+    config
+        .validate()
+        .map_err(|m| DataError::invalid(out, format!("invalid configuration: {m}")))?;
+    let world = World::new(&config.world, key(config.seed, stream::APPEARANCE, 0));
+    let rig = Rig::default();
+    atomic::write_json(&out.join("datagen.json"), config)?;
+    let (detection_images, detection_labels) =
+        write_detection_set(&out.join("detection"), &world, &rig, config)?;
+    let sequence = write_sequence(&out.join("sequence"), &world, &rig, config)?;
+    write_previews(&out.join("preview"), &world, &rig, &sequence)?;
+    Ok(Summary {
+        detection_images,
+        detection_labels,
+        frames: sequence.frames.len(),
+        route_length_m: sequence.route_length_m,
+        frames_after_route_end: sequence.frames_after_route_end,
+    })
+}
+
+fn coco_annotations(
+    labels: &[CornerLabel],
+    image_id: u64,
+    next_id: &mut u64,
+) -> Vec<CocoAnnotation> {
+    labels
+        .iter()
+        .map(|l| {
+            *next_id += 1;
+            CocoAnnotation {
+                id: *next_id,
+                image_id,
+                category_id: 1,
+                bbox: l.bbox.to_xywh(),
+                area: l.bbox.area(),
+                iscrowd: 0,
+                corner_type: Some(l.kind.name().to_string()),
+                point: Some([l.point[0] as f32, l.point[1] as f32]),
+            }
+        })
+        .collect()
+}
+
+fn categories() -> Vec<CocoCategory> {
+    vec![CocoCategory {
+        id: 1,
+        name: "corner".into(),
+        supercategory: Some("corner".into()),
+    }]
+}
+
+/// A random robot pose in the free space, away from walls and boxes.
+fn random_robot_pose(world: &World, rng: &mut ChaCha8Rng) -> Pose3 {
+    let layout = &world.layout;
+    let areas: Vec<f64> = layout
+        .regions
+        .iter()
+        .map(|r| (r.x[1] - r.x[0]) * (r.y[1] - r.y[0]))
+        .collect();
+    let total: f64 = areas.iter().sum();
+    loop {
+        let mut pick = rng.random_range(0.0..total);
+        let region = areas.iter().position(|a| {
+            pick -= a;
+            pick < 0.0
+        });
+        let r = &layout.regions[region.unwrap_or(0)];
+        let margin = 0.35;
+        let x = rng.random_range(r.x[0] + margin..r.x[1] - margin);
+        let y = rng.random_range(r.y[0] + margin..r.y[1] - margin);
+        let blocked = layout.obstacles.iter().any(|b| {
+            x > b.x[0] - margin && x < b.x[1] + margin && y > b.y[0] - margin && y < b.y[1] + margin
+        });
+        if blocked {
+            continue;
+        }
+        // Half the views look along the region's long axis (down corridors and ramps).
+        let heading = if rng.random_bool(0.5) {
+            let along = if let Floor::Ramp { axis, .. } = r.floor {
+                axis == crate::world::layout::Axis::X
+            } else {
+                r.x[1] - r.x[0] >= r.y[1] - r.y[0]
+            };
+            let base = if along {
+                0.0
+            } else {
+                std::f64::consts::FRAC_PI_2
+            };
+            let flip = if rng.random_bool(0.5) {
+                std::f64::consts::PI
+            } else {
+                0.0
+            };
+            base + flip + rng.random_range(-0.5..0.5)
+        } else {
+            rng.random_range(-std::f64::consts::PI..std::f64::consts::PI)
+        };
+        if let Some(pose) = pose_on_floor(layout, [x, y], heading) {
+            return pose;
+        }
+    }
+}
+
+fn write_detection_set(
+    dir: &Path,
+    world: &World,
+    rig: &Rig,
+    config: &DatagenConfig,
+) -> Result<(usize, usize)> {
+    let n = config.detection.images;
+    let bar = progress(n, "detection");
+    let results: Vec<Result<(CocoImage, Vec<CornerLabel>)>> = (0..n)
+        .into_par_iter()
+        .map(|i| {
+            let k = key(config.seed, stream::DETECTION, i as u64);
+            let mut rng = ChaCha8Rng::seed_from_u64(k);
+            let world_from_camera = random_robot_pose(world, &mut rng) * rig.robot_from_camera;
+            let lighting = Lighting::varied(k, world.layout.lights.len());
+            let image = render(world, &rig.camera, &world_from_camera, &lighting);
+            let labels = visible_corners(world, &rig.camera, &world_from_camera, &config.labels);
+            let name = format!("{i:06}.png");
+            let image = DynamicImage::ImageRgb8(image);
+            atomic::write_image(
+                &dir.join("canny").join(&name),
+                &DynamicImage::ImageLuma8(preprocess(&image, &config.preprocess)),
+            )?;
+            atomic::write_image(&dir.join("images").join(&name), &image)?;
+            bar.inc(1);
+            let entry = CocoImage {
+                id: i as u64 + 1,
+                file_name: format!("images/{name}"),
+                width: rig.camera.width,
+                height: rig.camera.height,
+            };
+            Ok((entry, labels))
+        })
+        .collect();
+    bar.finish_and_clear();
+    let mut splits = [
+        CocoDataset {
+            categories: categories(),
+            ..Default::default()
+        },
+        CocoDataset {
+            categories: categories(),
+            ..Default::default()
+        },
+    ];
+    let mut next_id = 0;
+    let mut label_count = 0;
+    for (i, result) in results.into_iter().enumerate() {
+        let (entry, labels) = result?;
+        let split = &mut splits[usize::from(i >= config.detection.train)];
+        label_count += labels.len();
+        split
+            .annotations
+            .extend(coco_annotations(&labels, entry.id, &mut next_id));
+        split.images.push(entry);
+    }
+    formats::write_coco(&dir.join("train.json"), &splits[0])?;
+    formats::write_coco(&dir.join("test.json"), &splits[1])?;
+    Ok((n, label_count))
+}
+
+/// A recorded frame of the sequence.
+pub struct Frame {
+    pub stamp: f64,
+    pub world_from_robot: Pose3,
+    pub labels: Vec<CornerLabel>,
+    pub cloud: formats::PointCloud,
+}
+
+pub struct Sequence {
+    pub frames: Vec<Frame>,
+    pub route_length_m: f64,
+    pub frames_after_route_end: usize,
+}
+
+/// The file stem of a frame: its timestamp with six decimals, as TUM RGB-D names files.
+pub fn stamp_name(stamp: f64) -> String {
+    format!("{stamp:.6}")
+}
+
+fn write_sequence(
+    dir: &Path,
+    world: &World,
+    rig: &Rig,
+    config: &DatagenConfig,
+) -> Result<Sequence> {
+    let s = &config.sequence;
+    let route = Route::new(&world.layout.route, s.turn_radius_m);
+    let length = route.length();
+    let whole_route = (length / s.speed_mps * s.rate_hz).floor() as usize + 1;
+    let count = s.frames.unwrap_or(whole_route);
+    let frames_after_route_end = count.saturating_sub(whole_route);
+    let layout = &world.layout;
+    let pose_at = |t: f64| -> Pose3 {
+        let (xy, heading) = route.at(s.speed_mps * t.max(0.0));
+        pose_on_floor(layout, xy, heading).expect("the route stays inside the free space")
+    };
+    let bar = progress(count, "sequence");
+    let frames: Vec<Result<Frame>> = (0..count)
+        .into_par_iter()
+        .map(|k| {
+            let stamp = k as f64 / s.rate_hz;
+            let world_from_robot = pose_at(stamp);
+            let world_from_camera = world_from_robot * rig.robot_from_camera;
+            // Lighting drifts slowly along the route, noise changes every frame.
+            let mut lighting = Lighting::varied(
+                key(config.seed, stream::SEQUENCE_LIGHT, 0),
+                layout.lights.len(),
+            );
+            lighting.gain *= 1.0 + 0.15 * (stamp as f32 * 0.01).sin();
+            lighting.noise_seed = key(config.seed, stream::SEQUENCE_LIGHT, k as u64 + 1);
+            let image = render(world, &rig.camera, &world_from_camera, &lighting);
+            let labels = visible_corners(world, &rig.camera, &world_from_camera, &config.labels);
+            let cloud = scan(
+                world,
+                &config.lidar,
+                &(world_from_robot * rig.robot_from_lidar),
+                key(config.seed, stream::LIDAR, k as u64),
+            );
+            let name = stamp_name(stamp);
+            atomic::write_image(
+                &dir.join("rgb").join(format!("{name}.png")),
+                &DynamicImage::ImageRgb8(image),
+            )?;
+            formats::write_pcd(
+                &dir.join("cloud").join(format!("{name}.pcd")),
+                &cloud,
+                PcdData::Binary,
+            )?;
+            bar.inc(1);
+            Ok(Frame {
+                stamp,
+                world_from_robot,
+                labels,
+                cloud,
+            })
+        })
+        .collect();
+    bar.finish_and_clear();
+    let frames: Vec<Frame> = frames.into_iter().collect::<Result<_>>()?;
+
+    let duration = (count - 1) as f64 / s.rate_hz;
+    let odometry = simulate_odometry(
+        &pose_at,
+        duration,
+        &config.motion,
+        key(config.seed, stream::ODOMETRY, 0),
+    );
+    let imu = simulate_imu(
+        &pose_at,
+        duration,
+        &config.motion,
+        key(config.seed, stream::IMU, 0),
+    );
+    formats::write_odometry(&dir.join("odom.csv"), &odometry)?;
+    formats::write_imu(&dir.join("imu.csv"), &imu)?;
+    let mut truth = Trajectory::default();
+    frames
+        .iter()
+        .for_each(|f| truth.push(f.stamp, f.world_from_robot));
+    formats::write_tum(&dir.join("groundtruth.txt"), &truth)?;
+    formats::write_calibration(&dir.join("calib.json"), &rig.calibration())?;
+
+    let mut labels = CocoDataset {
+        categories: categories(),
+        ..Default::default()
+    };
+    let mut next_id = 0;
+    for (k, f) in frames.iter().enumerate() {
+        let id = k as u64 + 1;
+        labels.images.push(CocoImage {
+            id,
+            file_name: format!("rgb/{}.png", stamp_name(f.stamp)),
+            width: rig.camera.width,
+            height: rig.camera.height,
+        });
+        labels
+            .annotations
+            .extend(coco_annotations(&f.labels, id, &mut next_id));
+    }
+    formats::write_coco(&dir.join("labels.json"), &labels)?;
+    atomic::write_json(&dir.join("world.json"), &WorldDescription::of(world))?;
+    Ok(Sequence {
+        frames,
+        route_length_m: length,
+        frames_after_route_end,
+    })
+}
+
+/// `world.json`: what the ground truth knows about the area, for per-level
+/// evaluation and for checking corners.
+#[derive(Debug, Clone, Serialize)]
+pub struct WorldDescription<'a> {
+    pub config: &'a WorldConfig,
+    pub levels: Vec<LevelDescription>,
+    pub regions: &'a [crate::world::layout::Region],
+    pub corners: &'a [crate::world::Corner],
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct LevelDescription {
+    pub name: String,
+    pub floor_height_m: f64,
+}
+
+impl<'a> WorldDescription<'a> {
+    pub fn of(world: &'a World) -> Self {
+        let layout = &world.layout;
+        let levels = layout
+            .config
+            .level_heights_m
+            .iter()
+            .enumerate()
+            .map(|(i, &h)| LevelDescription {
+                name: format!("level {}", i + 1),
+                floor_height_m: h,
+            })
+            .collect();
+        Self {
+            config: &layout.config,
+            levels,
+            regions: &layout.regions,
+            corners: &layout.corners,
+        }
+    }
+}
+
+const CORNER_COLOURS: [[u8; 3]; 5] = [
+    [0, 220, 0],
+    [0, 160, 255],
+    [255, 200, 0],
+    [255, 60, 60],
+    [220, 0, 220],
+];
+
+/// Draws labeled boxes (colour by corner type) and their corner points.
+pub fn draw_labels(image: &mut RgbImage, labels: &[CornerLabel]) {
+    for l in labels {
+        let colour = Rgb(CORNER_COLOURS[l.kind as usize]);
+        let b = l.bbox;
+        let rect = imageproc::rect::Rect::at(b.x1 as i32, b.y1 as i32)
+            .of_size(b.width().max(1.0) as u32, b.height().max(1.0) as u32);
+        imageproc::drawing::draw_hollow_rect_mut(image, rect, colour);
+        imageproc::drawing::draw_filled_circle_mut(
+            image,
+            (l.point[0] as i32, l.point[1] as i32),
+            2,
+            colour,
+        );
+    }
+}
+
+fn write_previews(dir: &Path, world: &World, rig: &Rig, sequence: &Sequence) -> Result<()> {
+    let n = sequence.frames.len();
+    let picks: Vec<usize> = if n <= 4 {
+        (0..n).collect()
+    } else {
+        (0..4).map(|i| i * (n - 1) / 3).collect()
+    };
+    let seq_dir: PathBuf = dir.parent().map(|p| p.join("sequence")).unwrap_or_default();
+    for k in picks {
+        let frame = &sequence.frames[k];
+        let path = seq_dir
+            .join("rgb")
+            .join(format!("{}.png", stamp_name(frame.stamp)));
+        let mut image = atomic::read_image(&path)?.to_rgb8();
+        draw_labels(&mut image, &frame.labels);
+        atomic::write_image(
+            &dir.join(format!("frame_{k:05}_labels.png")),
+            &DynamicImage::ImageRgb8(image),
+        )?;
+    }
+    atomic::write_image(
+        &dir.join("topdown.png"),
+        &DynamicImage::ImageRgb8(top_down(world, rig, sequence)),
+    )
+}
+
+/// A map of the area seen from above: floors shaded by height, walls, the
+/// LIDAR points of every few frames coloured by height, the route, corners.
+fn top_down(world: &World, rig: &Rig, sequence: &Sequence) -> RgbImage {
+    let layout = &world.layout;
+    let px_per_m = 40.0;
+    let (mut x0, mut y0, mut x1, mut y1) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
+    for r in &layout.regions {
+        x0 = x0.min(r.x[0]);
+        y0 = y0.min(r.y[0]);
+        x1 = x1.max(r.x[1]);
+        y1 = y1.max(r.y[1]);
+    }
+    let pad = 1.0;
+    let (w, h) = (
+        ((x1 - x0 + 2.0 * pad) * px_per_m) as u32,
+        ((y1 - y0 + 2.0 * pad) * px_per_m) as u32,
+    );
+    let to_px = |x: f64, y: f64| {
+        (
+            ((x - x0 + pad) * px_per_m) as f32,
+            ((y1 + pad - y) * px_per_m) as f32,
+        )
+    };
+    let mut image = RgbImage::from_pixel(w, h, Rgb([255, 255, 255]));
+    let [lo, _, hi] = layout.config.level_heights_m;
+    let ceiling = layout.config.ceiling_height_m;
+    for (px, py, pixel) in image.enumerate_pixels_mut() {
+        let x = px as f64 / px_per_m + x0 - pad;
+        let y = y1 + pad - py as f64 / px_per_m;
+        if let Some(z) = layout.floor_height(x, y) {
+            let shade = (235.0 - 60.0 * (z - lo) / (hi - lo).max(1e-9)) as u8;
+            *pixel = Rgb([shade, shade, shade]);
+        }
+    }
+    let colour_of = |z: f64| {
+        let f = ((z - lo) / (ceiling - lo)).clamp(0.0, 1.0);
+        Rgb([
+            (255.0 * f) as u8,
+            (80.0 + 100.0 * (1.0 - (2.0 * f - 1.0).abs())) as u8,
+            (255.0 * (1.0 - f)) as u8,
+        ])
+    };
+    let step = (sequence.frames.len() / 40).max(1);
+    for frame in sequence.frames.iter().step_by(step) {
+        let world_from_lidar = frame.world_from_robot * rig.robot_from_lidar;
+        for p in frame.cloud.points.iter().step_by(3) {
+            let q = world_from_lidar * nalgebra::Point3::new(p.x as f64, p.y as f64, p.z as f64);
+            let (u, v) = to_px(q.x, q.y);
+            if u >= 0.0 && v >= 0.0 && (u as u32) < w && (v as u32) < h {
+                image.put_pixel(u as u32, v as u32, colour_of(q.z));
+            }
+        }
+    }
+    for s in layout
+        .surfaces
+        .iter()
+        .filter(|s| s.kind == crate::world::surface::SurfaceKind::Wall)
+    {
+        let (a, b) = (s.vertices[0], s.vertices[1]);
+        imageproc::drawing::draw_line_segment_mut(
+            &mut image,
+            to_px(a.x, a.y),
+            to_px(b.x, b.y),
+            Rgb([0, 0, 0]),
+        );
+    }
+    for pair in sequence.frames.windows(2) {
+        let (a, b) = (
+            pair[0].world_from_robot.translation.vector,
+            pair[1].world_from_robot.translation.vector,
+        );
+        imageproc::drawing::draw_line_segment_mut(
+            &mut image,
+            to_px(a.x, a.y),
+            to_px(b.x, b.y),
+            Rgb([200, 0, 0]),
+        );
+    }
+    for c in &layout.corners {
+        let (u, v) = to_px(c.position[0], c.position[1]);
+        imageproc::drawing::draw_hollow_circle_mut(
+            &mut image,
+            (u as i32, v as i32),
+            3,
+            Rgb(CORNER_COLOURS[c.kind as usize]),
+        );
+    }
+    image
+}
