@@ -227,6 +227,19 @@ fn categories() -> Vec<CocoCategory> {
     }]
 }
 
+/// A random robot pose in the free space, away from walls and boxes, whose
+/// camera does not stare at a surface closer than 1.5 m.
+fn random_view(world: &World, rig: &Rig, rng: &mut ChaCha8Rng) -> Pose3 {
+    loop {
+        let world_from_camera = random_robot_pose(world, rng) * rig.robot_from_camera;
+        let eye = nalgebra::Point3::from(world_from_camera.translation.vector);
+        let axis = world_from_camera.rotation * nalgebra::Vector3::z();
+        if world.cast(&eye, &axis, 1e-4, 1.5).is_none() {
+            return world_from_camera;
+        }
+    }
+}
+
 /// A random robot pose in the free space, away from walls and boxes.
 fn random_robot_pose(world: &World, rng: &mut ChaCha8Rng) -> Pose3 {
     let layout = &world.layout;
@@ -292,7 +305,7 @@ fn write_detection_set(
         .map(|i| {
             let k = key(config.seed, stream::DETECTION, i as u64);
             let mut rng = ChaCha8Rng::seed_from_u64(k);
-            let world_from_camera = random_robot_pose(world, &mut rng) * rig.robot_from_camera;
+            let world_from_camera = random_view(world, rig, &mut rng);
             let lighting = Lighting::varied(k, world.layout.lights.len());
             let image = render(world, &rig.camera, &world_from_camera, &lighting);
             let labels = visible_corners(world, &rig.camera, &world_from_camera, &config.labels);

@@ -2,6 +2,9 @@
 //! the shared preprocessing, the camera model and the synthetic multilevel
 //! world with its sensors.
 
+// Settings are validated as `!(x > lo)` on purpose: a NaN then fails the check.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 pub mod atomic;
 pub mod bbox;
 pub mod camera;

@@ -12,7 +12,7 @@ use datasets::generate::{DatagenConfig, generate};
 /// three-level indoor area. Settings come from the defaults, then `--config`,
 /// then the flags; the resolved settings are written to DIR/datagen.json.
 #[derive(Debug, Parser)]
-#[command(name = "datagen", version)]
+#[command(name = "datagen", version, allow_negative_numbers = true)]
 struct Args {
     /// Output folder (created if needed).
     #[arg(long)]

@@ -67,11 +67,42 @@ impl Bvh {
             self.nodes[node].count = end - start;
             return;
         }
-        // Median split of the centres along the widest axis.
-        let axis = (hi - lo).imax();
+        // Surface-area heuristic: of the splits of the centre-sorted lists
+        // along each axis, take the one that minimises the expected cost of
+        // a ray (box area times surfaces inside, for both halves).
+        let mut best = (f64::INFINITY, 0, start + (end - start) / 2);
+        for axis in 0..3 {
+            let centre = |i: usize| (boxes[i].0[axis] + boxes[i].1[axis]) * 0.5;
+            self.order[start..end].sort_by(|&a, &b| centre(a).total_cmp(&centre(b)));
+            let n = end - start;
+            let mut left_area = vec![0.0; n];
+            let (mut lo, mut hi) = (
+                Point3::from(Vec3::repeat(f64::INFINITY)),
+                Point3::from(Vec3::repeat(f64::NEG_INFINITY)),
+            );
+            for k in 0..n {
+                let i = self.order[start + k];
+                lo = lo.inf(&boxes[i].0);
+                hi = hi.sup(&boxes[i].1);
+                left_area[k] = area(&lo, &hi);
+            }
+            let (mut lo, mut hi) = (
+                Point3::from(Vec3::repeat(f64::INFINITY)),
+                Point3::from(Vec3::repeat(f64::NEG_INFINITY)),
+            );
+            for k in (1..n).rev() {
+                let i = self.order[start + k];
+                lo = lo.inf(&boxes[i].0);
+                hi = hi.sup(&boxes[i].1);
+                let cost = left_area[k - 1] * k as f64 + area(&lo, &hi) * (n - k) as f64;
+                if cost < best.0 {
+                    best = (cost, axis, start + k);
+                }
+            }
+        }
+        let (_, axis, mid) = best;
         let centre = |i: usize| (boxes[i].0[axis] + boxes[i].1[axis]) * 0.5;
         self.order[start..end].sort_by(|&a, &b| centre(a).total_cmp(&centre(b)));
-        let mid = (start + end) / 2;
         let left = self.nodes.len();
         self.nodes.push(Node {
             lo,
@@ -103,9 +134,7 @@ impl Bvh {
         let mut best: Option<Hit> = None;
         let mut limit = t_max;
         let root = &self.nodes[0];
-        let Some(entry) = slab(&root.lo, &root.hi, origin, &inv, t_min, limit) else {
-            return None;
-        };
+        let entry = slab(&root.lo, &root.hi, origin, &inv, t_min, limit)?;
         // (node, entry distance); children are visited near to far so that
         // the first hits shrink `limit` and prune the rest.
         let mut stack = [(0usize, 0.0f64); 32];
@@ -156,6 +185,11 @@ impl Bvh {
         }
         best
     }
+}
+
+fn area(lo: &Point3, hi: &Point3) -> f64 {
+    let d = hi - lo;
+    d.x * d.y + d.y * d.z + d.z * d.x
 }
 
 /// Where a ray enters an axis-aligned box within `(t_min, t_max)`, if it does.
