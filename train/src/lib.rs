@@ -1,1 +1,11 @@
-//! Training (filled by the detectors issue).
+//! Training of the detectors: target assignment, losses, the training loop
+//! with its loss log, resumable state and checkpoints.
+
+pub mod config;
+pub mod losses;
+pub mod step;
+pub mod targets;
+pub mod trainer;
+
+pub use config::{OptimizerKind, TrainConfig};
+pub use trainer::{TrainSummary, train};

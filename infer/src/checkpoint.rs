@@ -1,0 +1,158 @@
+//! A checkpoint is a folder: `config.json` (the resolved detector config),
+//! `model.bpk` (burnpack weights) and `meta.json` (data set, epochs, metrics).
+//! Inference rebuilds the network from the config and loads the weights,
+//! with no training code involved. The names are defined here once.
+
+use std::path::{Path, PathBuf};
+
+use burn::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::config::{Backbone, DetectorConfig};
+use crate::metrics::EvalMetrics;
+use crate::network::Network;
+
+pub const CONFIG_FILE: &str = "config.json";
+/// Burnpack appends `.bpk` to this stem.
+pub const WEIGHTS_STEM: &str = "model";
+pub const WEIGHTS_FILE: &str = "model.bpk";
+pub const META_FILE: &str = "meta.json";
+pub const FORMAT_VERSION: u32 = 1;
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CheckpointMeta {
+    pub format_version: u32,
+    pub backbone: Backbone,
+    pub width: f32,
+    /// The training data, as given to `train --data`.
+    pub dataset: String,
+    pub epochs: usize,
+    pub metrics: Option<EvalMetrics>,
+    /// Where the trunk's starting weights came from, if not from scratch.
+    pub pretrained: Option<String>,
+    pub train_seconds: f64,
+    pub parameters: usize,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum CheckpointError {
+    #[error(transparent)]
+    Data(#[from] datasets::DataError),
+    #[error("{path}: {message}")]
+    Invalid { path: PathBuf, message: String },
+    #[error("{path}: the weights do not fit the network of {config} ({message})")]
+    Weights {
+        path: PathBuf,
+        config: PathBuf,
+        message: String,
+    },
+}
+
+/// Writes a checkpoint folder atomically: into a temporary sibling folder,
+/// then renamed over `dir`.
+pub fn save(
+    dir: &Path,
+    config: &DetectorConfig,
+    network: &Network,
+    meta: &CheckpointMeta,
+) -> Result<(), CheckpointError> {
+    let parent = dir
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    std::fs::create_dir_all(parent).map_err(|e| datasets::DataError::io(parent, e))?;
+    let tmp = tempfile::Builder::new()
+        .prefix(".tmp-checkpoint-")
+        .tempdir_in(parent)
+        .map_err(|e| datasets::DataError::io(parent, e))?;
+    datasets::atomic::write_json(&tmp.path().join(CONFIG_FILE), config)?;
+    datasets::atomic::write_json(&tmp.path().join(META_FILE), meta)?;
+    let weights = tmp.path().join(WEIGHTS_STEM);
+    let result = match network {
+        Network::FasterRcnn(m) => m.clone().save_file(&weights),
+        Network::Grid(m) => m.clone().save_file(&weights),
+    };
+    result.map_err(|e| CheckpointError::Invalid {
+        path: weights.with_extension("bpk"),
+        message: e.to_string(),
+    })?;
+    let kept = tmp.keep();
+    if dir.exists() {
+        let old = parent.join(format!(
+            ".old-{}",
+            dir.file_name()
+                .and_then(|n| n.to_str())
+                .unwrap_or("checkpoint")
+        ));
+        let _ = std::fs::remove_dir_all(&old);
+        std::fs::rename(dir, &old).map_err(|e| datasets::DataError::io(dir, e))?;
+        std::fs::rename(&kept, dir).map_err(|e| datasets::DataError::io(dir, e))?;
+        let _ = std::fs::remove_dir_all(&old);
+    } else {
+        std::fs::rename(&kept, dir).map_err(|e| datasets::DataError::io(dir, e))?;
+    }
+    Ok(())
+}
+
+pub fn read_config(dir: &Path) -> Result<DetectorConfig, CheckpointError> {
+    let path = dir.join(CONFIG_FILE);
+    let text = datasets::atomic::read_text(&path)?;
+    let config: DetectorConfig =
+        serde_json::from_str(&text).map_err(|e| datasets::DataError::json(&path, e))?;
+    config
+        .validate()
+        .map_err(|message| CheckpointError::Invalid {
+            path: path.clone(),
+            message,
+        })?;
+    Ok(config)
+}
+
+pub fn read_meta(dir: &Path) -> Result<CheckpointMeta, CheckpointError> {
+    let path = dir.join(META_FILE);
+    let text = datasets::atomic::read_text(&path)?;
+    Ok(serde_json::from_str(&text).map_err(|e| datasets::DataError::json(&path, e))?)
+}
+
+/// Loads a checkpoint folder onto `device`.
+pub fn load(
+    dir: &Path,
+    device: &Device,
+) -> Result<(DetectorConfig, Network, CheckpointMeta), CheckpointError> {
+    if !dir.is_dir() {
+        return Err(CheckpointError::Invalid {
+            path: dir.to_path_buf(),
+            message: "no such checkpoint folder".into(),
+        });
+    }
+    let config = read_config(dir)?;
+    let meta = read_meta(dir)?;
+    let network = load_weights(dir, &config, device)?;
+    Ok((config, network, meta))
+}
+
+/// Builds the network of `config` and loads `dir/model.bpk` into it.
+pub fn load_weights(
+    dir: &Path,
+    config: &DetectorConfig,
+    device: &Device,
+) -> Result<Network, CheckpointError> {
+    let path = dir.join(WEIGHTS_FILE);
+    if !path.is_file() {
+        return Err(CheckpointError::Invalid {
+            path,
+            message: "weights file is missing".into(),
+        });
+    }
+    let weights_error = |e: burn::store::RecordError| CheckpointError::Weights {
+        path: path.clone(),
+        config: dir.join(CONFIG_FILE),
+        message: e.to_string(),
+    };
+    Ok(match Network::new(config, device) {
+        Network::FasterRcnn(m) => {
+            Network::FasterRcnn(m.try_load_file(&path).map_err(weights_error)?)
+        }
+        Network::Grid(m) => Network::Grid(m.try_load_file(&path).map_err(weights_error)?),
+    })
+}

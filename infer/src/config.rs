@@ -1,0 +1,206 @@
+//! The detector's configuration: which network, how wide, and the settings of
+//! its heads. It is saved with every checkpoint, and inference rebuilds the
+//! network from it.
+
+use datasets::preprocess::PreprocessConfig;
+use serde::{Deserialize, Serialize};
+
+use crate::anchors::AnchorConfig;
+
+/// The three networks of the paper. Variants are data: one enum, not copies.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum Backbone {
+    /// Two-stage detector on a VGG16 trunk (stride 16): RPN, RoIAlign, box head.
+    FasterRcnn,
+    /// VGG16 whose last classifier layer is a grid head.
+    Vgg16,
+    /// AlexNet whose last classifier layer is a grid head.
+    Alexnet,
+}
+
+impl Backbone {
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::FasterRcnn => "faster-rcnn",
+            Self::Vgg16 => "vgg16",
+            Self::Alexnet => "alexnet",
+        }
+    }
+}
+
+impl std::fmt::Display for Backbone {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// Default channel multiplier: a quarter of torchvision's widths trains at a
+/// few images per second on two CPU cores.
+pub const DEFAULT_WIDTH: f32 = 0.25;
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DetectorConfig {
+    pub backbone: Backbone,
+    /// Channel multiplier of the convolutions; 1.0 is torchvision's network.
+    pub width: f32,
+    /// Width of the fully connected layers (torchvision: 4096). Defaults to
+    /// 4096 * width^2, which keeps the heads' share of the compute as the
+    /// convolutions shrink.
+    pub hidden: usize,
+    pub in_channels: usize,
+    /// Foreground classes (corners are one class).
+    pub num_classes: usize,
+    /// How images become network inputs (size, Canny thresholds).
+    pub preprocess: PreprocessConfig,
+    pub anchors: AnchorConfig,
+    pub rpn: RpnConfig,
+    pub roi: RoiConfig,
+    /// Cells per side of the grid head (VGG16, AlexNet).
+    pub grid_cells: usize,
+    pub detection: DetectionConfig,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RpnConfig {
+    pub pre_nms_top_n_train: usize,
+    pub post_nms_top_n_train: usize,
+    pub pre_nms_top_n_test: usize,
+    pub post_nms_top_n_test: usize,
+    pub nms_iou: f32,
+    /// Anchors with IoU >= this are positives.
+    pub fg_iou: f32,
+    /// Anchors with IoU < this are negatives.
+    pub bg_iou: f32,
+    pub batch_size_per_image: usize,
+    pub positive_fraction: f32,
+    pub min_size: f32,
+}
+
+impl Default for RpnConfig {
+    fn default() -> Self {
+        Self {
+            pre_nms_top_n_train: 1000,
+            post_nms_top_n_train: 300,
+            pre_nms_top_n_test: 600,
+            post_nms_top_n_test: 150,
+            nms_iou: 0.7,
+            fg_iou: 0.7,
+            bg_iou: 0.3,
+            batch_size_per_image: 256,
+            positive_fraction: 0.5,
+            min_size: 1e-3,
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RoiConfig {
+    /// RoIAlign output side.
+    pub pool_size: usize,
+    /// Samples per bin side in RoIAlign.
+    pub sampling_ratio: usize,
+    pub fg_iou: f32,
+    pub bg_iou: f32,
+    pub batch_size_per_image: usize,
+    pub positive_fraction: f32,
+    /// Box coding weights of the head (torchvision: 10, 10, 5, 5).
+    pub box_weights: [f32; 4],
+}
+
+impl Default for RoiConfig {
+    fn default() -> Self {
+        Self {
+            pool_size: 7,
+            sampling_ratio: 2,
+            fg_iou: 0.5,
+            bg_iou: 0.5,
+            batch_size_per_image: 128,
+            positive_fraction: 0.25,
+            box_weights: [10.0, 10.0, 5.0, 5.0],
+        }
+    }
+}
+
+/// Post-processing shared by all networks.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DetectionConfig {
+    pub score_threshold: f32,
+    pub nms_iou: f32,
+    pub max_detections: usize,
+}
+
+impl Default for DetectionConfig {
+    fn default() -> Self {
+        Self {
+            score_threshold: 0.05,
+            nms_iou: 0.3,
+            max_detections: 100,
+        }
+    }
+}
+
+impl DetectorConfig {
+    pub fn new(backbone: Backbone, width: f32) -> Self {
+        Self {
+            backbone,
+            width,
+            hidden: default_hidden(width),
+            in_channels: 1,
+            num_classes: 1,
+            preprocess: PreprocessConfig::default(),
+            anchors: AnchorConfig::default(),
+            rpn: RpnConfig::default(),
+            roi: RoiConfig::default(),
+            grid_cells: 14,
+            detection: DetectionConfig::default(),
+        }
+    }
+
+    /// A channel count of torchvision's network scaled by the width.
+    pub fn channels(&self, torchvision: usize) -> usize {
+        ((torchvision as f32 * self.width).round() as usize).max(4)
+    }
+
+    pub fn input_size(&self) -> usize {
+        self.preprocess.size as usize
+    }
+
+    pub fn validate(&self) -> Result<(), String> {
+        if !(self.width > 0.0 && self.width <= 4.0) {
+            return Err(format!("width {} outside (0, 4]", self.width));
+        }
+        if self.in_channels == 0 || self.num_classes == 0 || self.hidden == 0 {
+            return Err("in_channels, num_classes and hidden must be positive".into());
+        }
+        self.preprocess.validate()?;
+        let size = self.input_size();
+        if size % 32 != 0 || size < 64 {
+            return Err(format!(
+                "input size {size} must be a multiple of 32 and at least 64"
+            ));
+        }
+        if self.grid_cells == 0 || size % self.grid_cells != 0 {
+            return Err(format!(
+                "grid of {} cells does not divide the input size {size}",
+                self.grid_cells
+            ));
+        }
+        if self.anchors.sizes.is_empty() || self.anchors.aspect_ratios.is_empty() {
+            return Err("anchors need at least one size and one aspect ratio".into());
+        }
+        let d = &self.detection;
+        if !((0.0..=1.0).contains(&d.score_threshold) && (0.0..=1.0).contains(&d.nms_iou)) {
+            return Err("detection thresholds must lie in 0..1".into());
+        }
+        Ok(())
+    }
+}
+
+pub fn default_hidden(width: f32) -> usize {
+    ((4096.0 * width * width).round() as usize).max(64)
+}

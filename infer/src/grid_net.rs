@@ -1,0 +1,115 @@
+//! VGG16 and AlexNet as the paper's baselines: torchvision's layers with the
+//! last classifier layer replaced by a grid head. For each cell of an S x S
+//! grid over the input the head predicts a corner-presence logit, the
+//! corner's offset within the cell (two logits, squashed to 0..1) and its
+//! box size (log of width and height over the cell side).
+
+use burn::nn::conv::Conv2d;
+use burn::nn::pool::{AdaptiveAvgPool2d, AdaptiveAvgPool2dConfig, MaxPool2d};
+use burn::nn::{Dropout, DropoutConfig, Linear, LinearConfig, Relu};
+use burn::prelude::*;
+
+use crate::config::{Backbone, DetectorConfig};
+use crate::trunk;
+
+/// Values per grid cell: presence, offset x, offset y, log width, log height.
+pub const CELL_VALUES: usize = 5;
+
+#[derive(Module, Debug)]
+pub struct GridNet {
+    /// Convolutions (`features.N` in torchvision).
+    pub features: Vec<Conv2d>,
+    /// Three linear layers; the last is the grid head (`classifier.N`).
+    pub classifier: Vec<Linear>,
+    pool: MaxPool2d,
+    avgpool: AdaptiveAvgPool2d,
+    dropout: Dropout,
+    act: Relu,
+    #[module(skip)]
+    backbone: Backbone,
+    #[module(skip)]
+    cells: usize,
+}
+
+/// The grid head's raw output, `[B, S, S, 5]`.
+#[derive(Debug, Clone)]
+pub struct GridOutput {
+    pub cells: Tensor<4>,
+}
+
+impl GridNet {
+    pub fn new(config: &DetectorConfig, device: &Device) -> Self {
+        let (features, pool, spatial, channels) = match config.backbone {
+            Backbone::Vgg16 => (
+                trunk::vgg16_convs(config, device),
+                trunk::max_pool_2x2(),
+                7,
+                config.channels(512),
+            ),
+            Backbone::Alexnet => (
+                trunk::alexnet_convs(config, device),
+                trunk::alexnet_pool(),
+                6,
+                config.channels(256),
+            ),
+            Backbone::FasterRcnn => panic!("GridNet is for vgg16 and alexnet"),
+        };
+        let h = config.hidden;
+        let s = config.grid_cells;
+        let classifier = vec![
+            LinearConfig::new(channels * spatial * spatial, h).init(device),
+            LinearConfig::new(h, h).init(device),
+            LinearConfig::new(h, s * s * CELL_VALUES).init(device),
+        ];
+        Self {
+            features,
+            classifier,
+            pool,
+            avgpool: AdaptiveAvgPool2dConfig::new([spatial, spatial]).init(),
+            dropout: DropoutConfig::new(0.5).init(),
+            act: Relu::new(),
+            backbone: config.backbone,
+            cells: s,
+        }
+    }
+
+    /// The convolutional features: `[B, C, 7, 7]` (VGG16) or `[B, C, 6, 6]` (AlexNet).
+    pub fn trunk(&self, x: Tensor<4>) -> Tensor<4> {
+        let x = match self.backbone {
+            Backbone::Alexnet => trunk::alexnet_forward(&self.features, &self.pool, &self.act, x),
+            _ => trunk::vgg16_forward(&self.features, &self.pool, &self.act, x, true),
+        };
+        self.avgpool.forward(x)
+    }
+
+    /// The head on trunk features.
+    pub fn head(&self, features: Tensor<4>) -> GridOutput {
+        let [b, ..] = features.dims();
+        let x: Tensor<2> = features.flatten(1, 3);
+        // torchvision: VGG applies dropout after each hidden layer, AlexNet before.
+        let x = match self.backbone {
+            Backbone::Alexnet => {
+                let x = self
+                    .act
+                    .forward(self.classifier[0].forward(self.dropout.forward(x)));
+                self.act
+                    .forward(self.classifier[1].forward(self.dropout.forward(x)))
+            }
+            _ => {
+                let x = self
+                    .dropout
+                    .forward(self.act.forward(self.classifier[0].forward(x)));
+                self.dropout
+                    .forward(self.act.forward(self.classifier[1].forward(x)))
+            }
+        };
+        let out = self.classifier[2].forward(x);
+        GridOutput {
+            cells: out.reshape([b, self.cells, self.cells, CELL_VALUES]),
+        }
+    }
+
+    pub fn forward(&self, x: Tensor<4>) -> GridOutput {
+        self.head(self.trunk(x))
+    }
+}

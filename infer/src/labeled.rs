@@ -1,0 +1,79 @@
+//! A COCO-form labeled image set, loaded and preprocessed once: what training
+//! and evaluation iterate over.
+
+use std::path::{Path, PathBuf};
+
+use image::GrayImage;
+use rayon::prelude::*;
+
+use crate::boxes::BBox;
+use crate::metrics::TruthCorner;
+use datasets::DataError;
+use datasets::formats::read_coco;
+use datasets::preprocess::{ImageToNet, PreprocessConfig, preprocess};
+
+#[derive(Debug, Clone)]
+pub struct LabeledImage {
+    pub path: PathBuf,
+    /// The network input (Canny edges, square).
+    pub edges: GrayImage,
+    pub width: u32,
+    pub height: u32,
+    /// Corners in original image pixels.
+    pub truth: Vec<TruthCorner>,
+}
+
+impl LabeledImage {
+    pub fn to_net(&self, size: u32) -> ImageToNet {
+        ImageToNet::new(self.width, self.height, size)
+    }
+    /// Ground-truth boxes in network input pixels.
+    pub fn net_boxes(&self, size: u32) -> Vec<BBox> {
+        let map = self.to_net(size);
+        self.truth.iter().map(|t| map.to_net(&t.bbox)).collect()
+    }
+}
+
+/// Loads the images of a COCO file (paths relative to the file's folder)
+/// and preprocesses them. An annotation without a `point` uses its box centre.
+pub fn load_coco_set(
+    annotations: &Path,
+    preprocess_config: &PreprocessConfig,
+) -> Result<Vec<LabeledImage>, DataError> {
+    let coco = read_coco(annotations)?;
+    let root = annotations.parent().unwrap_or(Path::new("."));
+    coco.images
+        .par_iter()
+        .map(|im| {
+            let path = root.join(&im.file_name);
+            let image = datasets::atomic::read_image(&path)?;
+            if (image.width(), image.height()) != (im.width, im.height) {
+                return Err(DataError::invalid(
+                    &path,
+                    format!(
+                        "image is {}x{} but {} says {}x{}",
+                        image.width(),
+                        image.height(),
+                        annotations.display(),
+                        im.width,
+                        im.height
+                    ),
+                ));
+            }
+            let truth = coco
+                .annotations_of(im.id)
+                .map(|a| TruthCorner {
+                    bbox: a.bbox(),
+                    point: a.point.unwrap_or_else(|| a.bbox().centre()),
+                })
+                .collect();
+            Ok(LabeledImage {
+                path,
+                edges: preprocess(&image, preprocess_config),
+                width: im.width,
+                height: im.height,
+                truth,
+            })
+        })
+        .collect()
+}

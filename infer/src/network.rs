@@ -1,0 +1,167 @@
+//! One type over the three networks, so that training, inference and
+//! checkpoints handle them alike.
+
+use burn::prelude::*;
+
+use crate::boxes::{BBox, batched_nms};
+use crate::config::{Backbone, DetectorConfig};
+use crate::faster_rcnn::{self, FasterRcnn, ProposalSettings};
+use crate::grid_net::{CELL_VALUES, GridNet};
+
+#[derive(Debug, Clone)]
+pub enum Network {
+    FasterRcnn(FasterRcnn),
+    Grid(GridNet),
+}
+
+/// A detection in the coordinates of the image it was asked for.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Detection {
+    pub bbox: BBox,
+    pub score: f32,
+    pub class: usize,
+}
+
+impl Network {
+    pub fn new(config: &DetectorConfig, device: &Device) -> Self {
+        match config.backbone {
+            Backbone::FasterRcnn => Self::FasterRcnn(FasterRcnn::new(config, device)),
+            Backbone::Vgg16 | Backbone::Alexnet => Self::Grid(GridNet::new(config, device)),
+        }
+    }
+
+    pub fn num_params(&self) -> usize {
+        match self {
+            Self::FasterRcnn(m) => m.num_params(),
+            Self::Grid(m) => m.num_params(),
+        }
+    }
+
+    /// Dropout off, no autodiff tracking: the network for inference.
+    pub fn valid(&self) -> Self {
+        match self {
+            Self::FasterRcnn(m) => Self::FasterRcnn(m.valid()),
+            Self::Grid(m) => Self::Grid(m.valid()),
+        }
+    }
+
+    /// Detections on a batch `[B, 1, S, S]` of network inputs, in input pixels.
+    pub fn detect(&self, config: &DetectorConfig, inputs: Tensor<4>) -> Vec<Vec<Detection>> {
+        let size = config.input_size() as f32;
+        let d = &config.detection;
+        match self {
+            Self::FasterRcnn(m) => {
+                let features = m.trunk(inputs);
+                let rpn = m.rpn(features.clone());
+                let [b, n] = rpn.objectness.dims();
+                let objectness = crate::host(rpn.objectness);
+                let deltas = crate::host(rpn.deltas);
+                let anchors = faster_rcnn::anchors_for(&config.anchors, rpn.grid_h, rpn.grid_w);
+                let settings = ProposalSettings {
+                    pre_nms_top_n: config.rpn.pre_nms_top_n_test,
+                    post_nms_top_n: config.rpn.post_nms_top_n_test,
+                    nms_iou: config.rpn.nms_iou,
+                    min_size: config.rpn.min_size,
+                };
+                let proposals: Vec<Vec<BBox>> = (0..b)
+                    .map(|i| {
+                        faster_rcnn::proposals(
+                            &objectness[i * n..(i + 1) * n],
+                            &deltas[i * n * 4..(i + 1) * n * 4],
+                            &anchors,
+                            size,
+                            settings,
+                        )
+                    })
+                    .collect();
+                if proposals.iter().all(Vec::is_empty) {
+                    return vec![Vec::new(); b];
+                }
+                let head = m.head(features, &proposals);
+                let mut out = Vec::with_capacity(b);
+                let mut row = 0;
+                for p in &proposals {
+                    let rows = p.len();
+                    if rows == 0 {
+                        out.push(Vec::new());
+                        continue;
+                    }
+                    let logits = head.class_logits.clone().slice([row..row + rows]);
+                    let deltas = head.box_deltas.clone().slice([row..row + rows]);
+                    row += rows;
+                    let dets = faster_rcnn::postprocess(
+                        logits,
+                        deltas,
+                        p,
+                        config.roi.box_weights,
+                        size,
+                        d.score_threshold,
+                        d.nms_iou,
+                        d.max_detections,
+                    );
+                    out.push(
+                        dets.into_iter()
+                            .map(|(bbox, score, class)| Detection { bbox, score, class })
+                            .collect(),
+                    );
+                }
+                out
+            }
+            Self::Grid(m) => {
+                let cells = m.forward(inputs).cells;
+                let [b, s, _, _] = cells.dims();
+                let values = crate::host(cells);
+                (0..b)
+                    .map(|i| {
+                        decode_grid(
+                            &values[i * s * s * CELL_VALUES..(i + 1) * s * s * CELL_VALUES],
+                            s,
+                            size,
+                            config,
+                        )
+                    })
+                    .collect()
+            }
+        }
+    }
+}
+
+fn sigmoid(x: f32) -> f32 {
+    1.0 / (1.0 + (-x).exp())
+}
+
+/// Boxes from one image's grid output (`[S, S, 5]`, row-major).
+pub fn decode_grid(values: &[f32], s: usize, size: f32, config: &DetectorConfig) -> Vec<Detection> {
+    let cell = size / s as f32;
+    let d = &config.detection;
+    let (mut boxes, mut scores) = (Vec::new(), Vec::new());
+    for row in 0..s {
+        for col in 0..s {
+            let v = &values[(row * s + col) * CELL_VALUES..(row * s + col + 1) * CELL_VALUES];
+            let score = sigmoid(v[0]);
+            if score <= d.score_threshold {
+                continue;
+            }
+            let cx = (col as f32 + sigmoid(v[1])) * cell;
+            let cy = (row as f32 + sigmoid(v[2])) * cell;
+            let (w, h) = (
+                v[3].clamp(-4.0, 4.0).exp() * cell,
+                v[4].clamp(-4.0, 4.0).exp() * cell,
+            );
+            boxes.push(
+                BBox::new(cx - w / 2.0, cy - h / 2.0, cx + w / 2.0, cy + h / 2.0).clip(size, size),
+            );
+            scores.push(score);
+        }
+    }
+    let classes = vec![0; boxes.len()];
+    let mut keep = batched_nms(&boxes, &scores, &classes, d.nms_iou);
+    keep.truncate(d.max_detections);
+    keep.into_iter()
+        .map(|i| Detection {
+            bbox: boxes[i],
+            score: scores[i],
+            class: 0,
+        })
+        .collect()
+}

@@ -1,0 +1,46 @@
+//! RoIAlign (torchvision's `roi_align` with `aligned=True` and a fixed
+//! sampling ratio) built from `grid_sample_2d`, so that autodiff gives its
+//! gradient with respect to the feature map for free.
+
+use burn::nn::pool::AvgPool2dConfig;
+use burn::prelude::*;
+use burn::tensor::ops::{GridSampleOptions, GridSamplePaddingMode, InterpolateMode};
+
+use crate::boxes::BBox;
+
+/// Pools each of `rois` (in feature-map pixels) from one feature map
+/// `[1, C, H, W]` to `[K, C, output, output]`. Each output bin averages
+/// `sampling x sampling` bilinear samples.
+pub fn roi_align(features: Tensor<4>, rois: &[BBox], output: usize, sampling: usize) -> Tensor<4> {
+    let [_, c, h, w] = features.dims();
+    let device = features.device();
+    let k = rois.len();
+    let s = output * sampling;
+    let mut grid = Vec::with_capacity(k * s * s * 2);
+    for r in rois {
+        // aligned=True: pixel centres sit at half-integers, hence the -0.5 shift.
+        let (x1, y1) = (r.x1 - 0.5, r.y1 - 0.5);
+        let (bw, bh) = ((r.x2 - r.x1) / s as f32, (r.y2 - r.y1) / s as f32);
+        for iy in 0..s {
+            for ix in 0..s {
+                let (x, y) = (x1 + (ix as f32 + 0.5) * bw, y1 + (iy as f32 + 0.5) * bh);
+                // grid_sample's normalised coordinates with align_corners = false.
+                grid.push((x + 0.5) / w as f32 * 2.0 - 1.0);
+                grid.push((y + 0.5) / h as f32 * 2.0 - 1.0);
+            }
+        }
+    }
+    let grid = Tensor::<4>::from_data(TensorData::new(grid, [1, k * s, s, 2]), &device);
+    let options = GridSampleOptions::new(InterpolateMode::Bilinear)
+        .with_padding_mode(GridSamplePaddingMode::Zeros)
+        .with_align_corners(false);
+    // [1, C, K*s, s] -> [K, C, s, s]
+    let sampled = features
+        .grid_sample_2d(grid, options)
+        .reshape([c, k, s, s])
+        .swap_dims(0, 1);
+    AvgPool2dConfig::new([sampling, sampling])
+        .with_strides([sampling, sampling])
+        .init()
+        .forward(sampled)
+}

@@ -1,0 +1,218 @@
+//! `bench detectors`: training images per second, inference milliseconds per
+//! image and peak memory of each backbone on the chosen CPU backend. Each
+//! backbone runs in its own process so that its peak memory is its own.
+//!
+//!     cargo run --release --bin bench -- detectors [--backend flex|ndarray] [--width 0.25]
+
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use burn::prelude::*;
+use clap::{Parser, Subcommand};
+use image::GrayImage;
+use infer::backend::CpuBackend;
+use infer::config::{Backbone, DEFAULT_WIDTH, DetectorConfig};
+use infer::network::Network;
+use rand::SeedableRng;
+use rand::rngs::ChaCha8Rng;
+use train::step::{Batch, batch_losses};
+
+#[derive(Debug, Parser)]
+#[command(name = "bench")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Time a training step and inference of each detector.
+    Detectors {
+        #[arg(long, value_enum, default_value_t)]
+        backend: CpuBackend,
+        #[arg(long, default_value_t = DEFAULT_WIDTH)]
+        width: f32,
+        #[arg(long, default_value_t = 8)]
+        batch: usize,
+        /// Timed training steps (after one warm-up step).
+        #[arg(long, default_value_t = 3)]
+        steps: usize,
+        /// Run one backbone in this process (used by the parent run).
+        #[arg(long, value_enum)]
+        only: Option<Backbone>,
+        /// Print JSON lines instead of a table.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+#[derive(serde::Serialize, serde::Deserialize)]
+struct Figures {
+    backbone: Backbone,
+    backend: CpuBackend,
+    width: f32,
+    batch: usize,
+    train_images_per_s: f64,
+    infer_ms_per_image: f64,
+    peak_rss_mb: f64,
+    parameters: usize,
+}
+
+fn main() -> Result<()> {
+    let Command::Detectors {
+        backend,
+        width,
+        batch,
+        steps,
+        only,
+        json,
+    } = Cli::parse().command;
+    if let Some(backbone) = only {
+        let f = measure(backbone, backend, width, batch, steps)?;
+        println!("{}", serde_json::to_string(&f)?);
+        return Ok(());
+    }
+    let exe = std::env::current_exe()?;
+    if !json {
+        println!(
+            "| backbone | backend | width | train img/s | infer ms/img | peak RSS MB | parameters |"
+        );
+        println!("|---|---|---|---|---|---|---|");
+    }
+    for backbone in [Backbone::FasterRcnn, Backbone::Vgg16, Backbone::Alexnet] {
+        let out = std::process::Command::new(&exe)
+            .args([
+                "detectors",
+                "--backend",
+                &format!("{backend:?}").to_lowercase(),
+                "--width",
+                &width.to_string(),
+            ])
+            .args([
+                "--batch",
+                &batch.to_string(),
+                "--steps",
+                &steps.to_string(),
+                "--only",
+                backbone.name(),
+            ])
+            .output()
+            .context("running a benchmark child")?;
+        if !out.status.success() {
+            bail!("{backbone}: {}", String::from_utf8_lossy(&out.stderr));
+        }
+        let line = String::from_utf8(out.stdout)?;
+        if json {
+            print!("{line}");
+            continue;
+        }
+        let f: Figures = serde_json::from_str(line.trim())?;
+        println!(
+            "| {} | {:?} | {} | {:.2} | {:.1} | {:.0} | {} |",
+            f.backbone,
+            f.backend,
+            f.width,
+            f.train_images_per_s,
+            f.infer_ms_per_image,
+            f.peak_rss_mb,
+            f.parameters
+        );
+    }
+    Ok(())
+}
+
+/// A synthetic batch: random edge maps with a few boxes each.
+fn synthetic_batch(config: &DetectorConfig, batch: usize, device: &Device) -> Batch {
+    let size = config.preprocess.size;
+    let edges: Vec<GrayImage> = (0..batch)
+        .map(|i| {
+            GrayImage::from_fn(size, size, |x, y| {
+                if (x * 7 + y * 13 + i as u32 * 31) % 17 == 0 {
+                    image::Luma([255])
+                } else {
+                    image::Luma([0])
+                }
+            })
+        })
+        .collect();
+    let boxes = (0..batch)
+        .map(|i| {
+            (0..6)
+                .map(|k| {
+                    let (x, y) = (20.0 + 30.0 * k as f32, 30.0 + 20.0 * ((i + k) % 7) as f32);
+                    infer::boxes::BBox::new(x, y, x + 17.0, y + 22.0)
+                })
+                .collect()
+        })
+        .collect();
+    Batch {
+        inputs: infer::detector::input_tensor(&edges, device),
+        boxes,
+    }
+}
+
+fn measure(
+    backbone: Backbone,
+    backend: CpuBackend,
+    width: f32,
+    batch: usize,
+    steps: usize,
+) -> Result<Figures> {
+    let config = DetectorConfig::new(backbone, width);
+    let device = backend.device().autodiff();
+    let mut network = Network::new(&config, &device);
+    let mut optim = burn::optim::AdamWConfig::new().init();
+    let data = synthetic_batch(&config, batch, &device);
+    let mut rng = ChaCha8Rng::seed_from_u64(1);
+    let mut step = |network: Network| -> Network {
+        let losses = batch_losses(&network, &config, &data, &mut rng);
+        let grads = losses.total.backward();
+        match network {
+            Network::FasterRcnn(m) => {
+                let g = burn::optim::GradientsParams::from_grads(grads, &m);
+                Network::FasterRcnn(optim.step(1e-4, m, g))
+            }
+            Network::Grid(m) => {
+                let g = burn::optim::GradientsParams::from_grads(grads, &m);
+                Network::Grid(optim.step(1e-4, m, g))
+            }
+        }
+    };
+    network = step(network);
+    let started = Instant::now();
+    for _ in 0..steps {
+        network = step(network);
+    }
+    let train_images_per_s = (steps * batch) as f64 / started.elapsed().as_secs_f64();
+
+    let plain = device.without_autodiff();
+    let model = network.valid();
+    let inputs = synthetic_batch(&config, batch, &plain).inputs;
+    let _ = model.detect(&config, inputs.clone());
+    let started = Instant::now();
+    for _ in 0..steps {
+        let _ = model.detect(&config, inputs.clone());
+    }
+    let infer_ms_per_image = started.elapsed().as_secs_f64() * 1e3 / (steps * batch) as f64;
+    Ok(Figures {
+        backbone,
+        backend,
+        width,
+        batch,
+        train_images_per_s,
+        infer_ms_per_image,
+        peak_rss_mb: peak_rss_mb(),
+        parameters: model.num_params(),
+    })
+}
+
+/// The process's peak resident memory (Linux `VmHWM`), in MB.
+fn peak_rss_mb() -> f64 {
+    let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
+    status
+        .lines()
+        .find(|l| l.starts_with("VmHWM:"))
+        .and_then(|l| l.split_whitespace().nth(1))
+        .and_then(|kb| kb.parse::<f64>().ok())
+        .map_or(f64::NAN, |kb| kb / 1024.0)
+}

@@ -1,0 +1,97 @@
+//! `train --backbone faster-rcnn|vgg16|alexnet --data DIR --out RUN_DIR`
+//! trains a detector; `train --resume RUN_DIR` continues an interrupted run.
+
+use std::path::PathBuf;
+
+use anyhow::{Result, bail};
+use clap::Parser;
+use infer::backend::CpuBackend;
+use infer::config::{Backbone, DEFAULT_WIDTH};
+use train::{OptimizerKind, TrainConfig};
+
+#[derive(Debug, Parser)]
+#[command(name = "train", version)]
+struct Args {
+    #[arg(long, value_enum, required_unless_present = "resume")]
+    backbone: Option<Backbone>,
+    /// A `datagen` detection folder (train.json, test.json, images/).
+    #[arg(long, required_unless_present = "resume")]
+    data: Option<PathBuf>,
+    /// Run folder: settings, loss log, checkpoints, metrics.
+    #[arg(long, required_unless_present = "resume")]
+    out: Option<PathBuf>,
+    /// Continue the run in this folder from its last completed epoch.
+    #[arg(long, conflicts_with_all = ["backbone", "data", "out"])]
+    resume: Option<PathBuf>,
+    /// Epochs (default: 24 for faster-rcnn, 40 for the grid networks).
+    #[arg(long)]
+    epochs: Option<usize>,
+    #[arg(long, default_value_t = 8)]
+    batch_size: usize,
+    #[arg(long, value_enum, default_value_t = OptimizerKind::Adam)]
+    optimizer: OptimizerKind,
+    /// Peak learning rate (default: 1e-3 for faster-rcnn, 5e-4 for the grid networks).
+    #[arg(long)]
+    lr: Option<f64>,
+    #[arg(long, default_value_t = 42)]
+    seed: u64,
+    /// Channel multiplier; 1.0 is torchvision's full network.
+    #[arg(long, default_value_t = DEFAULT_WIDTH)]
+    width: f32,
+    /// Turn off the random left-right flips.
+    #[arg(long)]
+    no_augment: bool,
+    #[arg(long, value_enum, default_value_t)]
+    backend: CpuBackend,
+}
+
+fn main() -> Result<()> {
+    let args = Args::parse();
+    let (config, run) = match (&args.resume, args.backbone, &args.data, &args.out) {
+        (Some(run), ..) => (None, run.clone()),
+        (None, Some(backbone), Some(data), Some(out)) => {
+            if !data.is_dir() {
+                bail!("--data {}: not a folder", data.display());
+            }
+            if out.join(train::trainer::CONFIG_FILE).exists() {
+                bail!(
+                    "--out {} already holds a run: use --resume {} to continue it, or another folder",
+                    out.display(),
+                    out.display()
+                );
+            }
+            let mut c = TrainConfig::new(backbone, args.width, data.clone());
+            if let Some(e) = args.epochs {
+                c.epochs = e;
+            }
+            if let Some(lr) = args.lr {
+                c.lr = lr;
+            }
+            c.batch_size = args.batch_size;
+            c.optimizer = args.optimizer;
+            c.seed = args.seed;
+            c.augment = !args.no_augment;
+            c.backend = args.backend;
+            (Some(c), out.clone())
+        }
+        _ => bail!("give --backbone, --data and --out, or --resume RUN_DIR"),
+    };
+    std::fs::create_dir_all(&run)?;
+    let summary = train::train(config, &run, true)?;
+    let m = &summary.metrics;
+    println!(
+        "final train loss {:.4}{}; test AP@0.5 {:.3}, precision {:.3}, recall {:.3}, pixel error {:.2} px; {:.0} s; run in {}",
+        summary.final_train_loss,
+        summary
+            .final_valid_loss
+            .map(|v| format!(", valid loss {v:.4}"))
+            .unwrap_or_default(),
+        m.ap50,
+        m.precision,
+        m.recall,
+        m.mean_pixel_error,
+        summary.seconds,
+        run.display()
+    );
+    Ok(())
+}

@@ -1,0 +1,94 @@
+//! The training settings, written to the run folder as `train_config.json`
+//! so that a run can be resumed and reproduced.
+
+use std::path::PathBuf;
+
+use infer::backend::CpuBackend;
+use infer::config::{Backbone, DetectorConfig};
+use serde::{Deserialize, Serialize};
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum OptimizerKind {
+    /// Adam with decoupled weight decay (AdamW).
+    Adam,
+    /// SGD with momentum 0.9 (no dampening, as PyTorch).
+    Sgd,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainConfig {
+    pub detector: DetectorConfig,
+    /// A `datagen` detection folder with `train.json` and `test.json`.
+    pub data: PathBuf,
+    pub epochs: usize,
+    pub batch_size: usize,
+    pub optimizer: OptimizerKind,
+    /// Peak learning rate; a linear warm-up leads to it, a cosine decays it to 1% by the end.
+    pub lr: f64,
+    pub weight_decay: f64,
+    pub warmup_iterations: usize,
+    pub seed: u64,
+    /// Share of the training split held out for the validation loss.
+    pub val_fraction: f32,
+    /// Random left-right flips of the training images.
+    pub augment: bool,
+    pub backend: CpuBackend,
+}
+
+impl TrainConfig {
+    /// Defaults measured to work on the default data (see the README).
+    pub fn new(backbone: Backbone, width: f32, data: PathBuf) -> Self {
+        let (epochs, lr) = match backbone {
+            Backbone::FasterRcnn => (24, 1e-3),
+            Backbone::Vgg16 | Backbone::Alexnet => (40, 5e-4),
+        };
+        Self {
+            detector: DetectorConfig::new(backbone, width),
+            data,
+            epochs,
+            batch_size: 8,
+            optimizer: OptimizerKind::Adam,
+            lr,
+            weight_decay: 1e-4,
+            warmup_iterations: 50,
+            seed: 42,
+            val_fraction: 0.1,
+            augment: true,
+            backend: CpuBackend::Flex,
+        }
+    }
+
+    pub fn validate(&self) -> Result<(), String> {
+        self.detector.validate()?;
+        if self.epochs == 0 || self.batch_size == 0 {
+            return Err("epochs and batch size must be at least 1".into());
+        }
+        if !(self.lr.is_finite() && self.lr > 0.0 && self.lr < 1.0) {
+            return Err(format!("learning rate {} outside (0, 1)", self.lr));
+        }
+        if !(self.weight_decay.is_finite() && self.weight_decay >= 0.0) {
+            return Err(format!("weight decay {} must be >= 0", self.weight_decay));
+        }
+        if !(0.0..0.9).contains(&self.val_fraction) {
+            return Err(format!(
+                "validation fraction {} outside [0, 0.9)",
+                self.val_fraction
+            ));
+        }
+        Ok(())
+    }
+
+    /// The learning rate at `iteration` of `total`.
+    pub fn lr_at(&self, iteration: usize, total: usize) -> f64 {
+        let warm = if self.warmup_iterations > 0 {
+            ((iteration + 1) as f64 / self.warmup_iterations as f64).min(1.0)
+        } else {
+            1.0
+        };
+        let progress = iteration as f64 / total.max(1) as f64;
+        let cosine = 0.01 + 0.99 * 0.5 * (1.0 + (std::f64::consts::PI * progress).cos());
+        self.lr * warm * cosine
+    }
+}

@@ -1,0 +1,105 @@
+//! One training (or validation) step's loss: batch assembly with optional
+//! horizontal flips, target assignment and the network's losses.
+
+use burn::prelude::*;
+use image::imageops::flip_horizontal;
+use rand::rngs::ChaCha8Rng;
+
+use crate::losses::{Losses, faster_rcnn_losses, grid_losses};
+use crate::targets::{grid_targets, roi_targets, rpn_targets};
+use infer::boxes::BBox;
+use infer::config::DetectorConfig;
+use infer::detector::input_tensor;
+use infer::faster_rcnn::{self, ProposalSettings};
+use infer::labeled::LabeledImage;
+use infer::network::Network;
+
+/// Network inputs with their ground-truth boxes in input pixels.
+pub struct Batch {
+    pub inputs: Tensor<4>,
+    pub boxes: Vec<Vec<BBox>>,
+}
+
+/// Stacks images (flipped left-right where `flips` says so) into a batch.
+pub fn make_batch(images: &[&LabeledImage], flips: &[bool], size: u32, device: &Device) -> Batch {
+    let mut edges = Vec::with_capacity(images.len());
+    let mut boxes = Vec::with_capacity(images.len());
+    for (im, &flip) in images.iter().zip(flips) {
+        let b = im.net_boxes(size);
+        if flip {
+            edges.push(flip_horizontal(&im.edges));
+            let s = size as f32;
+            boxes.push(
+                b.iter()
+                    .map(|b| BBox::new(s - b.x2, b.y1, s - b.x1, b.y2))
+                    .collect(),
+            );
+        } else {
+            edges.push(im.edges.clone());
+            boxes.push(b);
+        }
+    }
+    Batch {
+        inputs: input_tensor(&edges, device),
+        boxes,
+    }
+}
+
+/// Weight of a positive cell in the grid heads' presence loss.
+pub const GRID_POSITIVE_WEIGHT: f32 = 5.0;
+
+/// The loss of `network` on `batch`; `rng` drives the anchor and RoI sampling.
+pub fn batch_losses(
+    network: &Network,
+    config: &DetectorConfig,
+    batch: &Batch,
+    rng: &mut ChaCha8Rng,
+) -> Losses {
+    let size = config.input_size() as f32;
+    match network {
+        Network::FasterRcnn(m) => {
+            let features = m.trunk(batch.inputs.clone());
+            let rpn = m.rpn(features.clone());
+            let [b, n] = rpn.objectness.dims();
+            let anchors = faster_rcnn::anchors_for(&config.anchors, rpn.grid_h, rpn.grid_w);
+            let rpn_t: Vec<_> = batch
+                .boxes
+                .iter()
+                .map(|truth| rpn_targets(&anchors, truth, &config.rpn, rng))
+                .collect();
+            let objectness = infer::host(rpn.objectness.clone());
+            let deltas = infer::host(rpn.deltas.clone());
+            let settings = ProposalSettings {
+                pre_nms_top_n: config.rpn.pre_nms_top_n_train,
+                post_nms_top_n: config.rpn.post_nms_top_n_train,
+                nms_iou: config.rpn.nms_iou,
+                min_size: config.rpn.min_size,
+            };
+            let roi_t: Vec<_> = (0..b)
+                .map(|i| {
+                    let proposals = faster_rcnn::proposals(
+                        &objectness[i * n..(i + 1) * n],
+                        &deltas[i * n * 4..(i + 1) * n * 4],
+                        &anchors,
+                        size,
+                        settings,
+                    );
+                    let classes = vec![0; batch.boxes[i].len()];
+                    roi_targets(&proposals, &batch.boxes[i], &classes, &config.roi, rng)
+                })
+                .collect();
+            let rois: Vec<Vec<BBox>> = roi_t.iter().map(|t| t.rois.clone()).collect();
+            let head = m.head(features, &rois);
+            faster_rcnn_losses(&rpn, &rpn_t, &head, &roi_t)
+        }
+        Network::Grid(m) => {
+            let out = m.forward(batch.inputs.clone());
+            let targets: Vec<_> = batch
+                .boxes
+                .iter()
+                .map(|truth| grid_targets(truth, config.grid_cells, size))
+                .collect();
+            grid_losses(&out, &targets, GRID_POSITIVE_WEIGHT)
+        }
+    }
+}

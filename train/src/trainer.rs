@@ -1,0 +1,420 @@
+//! The training loop: mini-batches, the optimizer and its learning-rate
+//! schedule, the loss log, a resumable state after every epoch, an
+//! inference checkpoint, and the final evaluation on the test split.
+//!
+//! A run folder holds:
+//! - `train_config.json`: the resolved settings;
+//! - `losses.csv`: `kind,epoch,iteration,loss,<4 parts>,lr,elapsed_s` where
+//!   `kind` is `train` (one row per iteration), `train_epoch` or
+//!   `valid_epoch` (means over an epoch);
+//! - `resume/`: model, optimizer and progress after the last full epoch;
+//! - `checkpoint/`: the folder `infer` and `localize` load;
+//! - `metrics.json`: AP@0.5, precision, recall, pixel error on the test split.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use burn::grad_clipping::GradientClippingConfig;
+use burn::module::Module;
+use burn::optim::decay::WeightDecayConfig;
+use burn::optim::momentum::MomentumConfig;
+use burn::optim::{AdamWConfig, GradientsParams, ModuleOptimizer, SgdConfig};
+use burn::prelude::*;
+use indicatif::{ProgressBar, ProgressStyle};
+use rand::SeedableRng;
+use rand::rngs::ChaCha8Rng;
+use rand::seq::SliceRandom;
+use serde::{Deserialize, Serialize};
+
+use crate::config::{OptimizerKind, TrainConfig};
+use crate::losses::{FASTER_RCNN_PARTS, GRID_PARTS};
+use crate::step::{batch_losses, make_batch};
+use infer::checkpoint::{self, CheckpointMeta};
+use infer::config::Backbone;
+use infer::labeled::{LabeledImage, load_coco_set};
+use infer::metrics::EvalMetrics;
+use infer::network::Network;
+use infer::{Detector, eval};
+
+pub const CONFIG_FILE: &str = "train_config.json";
+pub const LOSSES_FILE: &str = "losses.csv";
+pub const RESUME_DIR: &str = "resume";
+pub const CHECKPOINT_DIR: &str = "checkpoint";
+pub const METRICS_FILE: &str = "metrics.json";
+const STATE_FILE: &str = "state.json";
+const OPTIMIZER_STEM: &str = "optimizer";
+
+/// Progress after a completed epoch.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct ResumeState {
+    epochs_done: usize,
+    elapsed_s: f64,
+    csv: String,
+}
+
+#[derive(Debug, Clone)]
+pub struct TrainSummary {
+    pub metrics: EvalMetrics,
+    pub final_train_loss: f64,
+    pub final_valid_loss: Option<f64>,
+    pub seconds: f64,
+}
+
+fn mix(a: u64, b: u64) -> u64 {
+    datasets::world::layout::mix(a ^ datasets::world::layout::mix(b))
+}
+
+fn optimizer(config: &TrainConfig) -> ModuleOptimizer {
+    let clip = Some(GradientClippingConfig::Norm(10.0));
+    match config.optimizer {
+        OptimizerKind::Adam => AdamWConfig::new()
+            .with_weight_decay(config.weight_decay as f32)
+            .with_grad_clipping(clip)
+            .init(),
+        OptimizerKind::Sgd => SgdConfig::new()
+            .with_momentum(Some(
+                MomentumConfig::new().with_momentum(0.9).with_dampening(0.0),
+            ))
+            .with_weight_decay(Some(WeightDecayConfig::new(config.weight_decay as f32)))
+            .with_gradient_clipping(clip)
+            .init(),
+    }
+}
+
+/// One optimizer step on whichever network it is.
+fn apply(
+    network: Network,
+    optim: &mut ModuleOptimizer,
+    lr: f64,
+    grads: burn::tensor::Gradients,
+) -> Network {
+    match network {
+        Network::FasterRcnn(m) => {
+            let g = GradientsParams::from_grads(grads, &m);
+            Network::FasterRcnn(optim.step(lr, m, g))
+        }
+        Network::Grid(m) => {
+            let g = GradientsParams::from_grads(grads, &m);
+            Network::Grid(optim.step(lr, m, g))
+        }
+    }
+}
+
+fn save_network(network: &Network, stem: &Path) -> Result<()> {
+    let r = match network {
+        Network::FasterRcnn(m) => m.clone().save_file(stem),
+        Network::Grid(m) => m.clone().save_file(stem),
+    };
+    r.with_context(|| format!("writing {}", stem.display()))
+}
+
+fn csv_header(backbone: Backbone) -> String {
+    let parts = if backbone == Backbone::FasterRcnn {
+        FASTER_RCNN_PARTS
+    } else {
+        GRID_PARTS
+    };
+    format!(
+        "kind,epoch,iteration,loss,{},lr,elapsed_s\n",
+        parts.join(",")
+    )
+}
+
+/// Splits the training set into (train, validation) deterministically.
+fn split<'a>(
+    all: &'a [LabeledImage],
+    fraction: f32,
+    seed: u64,
+) -> (Vec<&'a LabeledImage>, Vec<&'a LabeledImage>) {
+    let mut order: Vec<usize> = (0..all.len()).collect();
+    order.shuffle(&mut ChaCha8Rng::seed_from_u64(mix(seed, 0x5417)));
+    let n_val = (all.len() as f32 * fraction).round() as usize;
+    let valid = order[..n_val].iter().map(|&i| &all[i]).collect();
+    let train = order[n_val..].iter().map(|&i| &all[i]).collect();
+    (train, valid)
+}
+
+/// Trains into `run`. With `resume`, continues the run found there.
+pub fn train(config: Option<TrainConfig>, run: &Path, show_progress: bool) -> Result<TrainSummary> {
+    let resume_dir = run.join(RESUME_DIR);
+    let (config, state) = match config {
+        Some(c) => {
+            c.validate()
+                .map_err(|m| anyhow::anyhow!("invalid settings: {m}"))?;
+            (c, None)
+        }
+        None => {
+            let path = run.join(CONFIG_FILE);
+            let text = datasets::atomic::read_text(&path).context("nothing to resume")?;
+            let c: TrainConfig = serde_json::from_str(&text)
+                .with_context(|| format!("{}: invalid settings", path.display()))?;
+            let state_path = resume_dir.join(STATE_FILE);
+            let state = if state_path.is_file() {
+                let text = datasets::atomic::read_text(&state_path)?;
+                Some(
+                    serde_json::from_str::<ResumeState>(&text)
+                        .with_context(|| format!("{}: invalid state", state_path.display()))?,
+                )
+            } else {
+                None
+            };
+            (c, state)
+        }
+    };
+    let device = config.backend.device().autodiff();
+    let inner = device.clone().without_autodiff();
+    let det = &config.detector;
+    let train_json = config.data.join("train.json");
+    let test_json = config.data.join("test.json");
+    for p in [&train_json, &test_json] {
+        if !p.is_file() {
+            bail!(
+                "{}: missing (--data must be a datagen detection folder with train.json and test.json)",
+                p.display()
+            );
+        }
+    }
+    let all = load_coco_set(&train_json, &det.preprocess)?;
+    let test = load_coco_set(&test_json, &det.preprocess)?;
+    if all.is_empty() {
+        bail!("{}: no training images", train_json.display());
+    }
+    let (train_set, valid_set) = split(&all, config.val_fraction, config.seed);
+    datasets::atomic::write_json(&run.join(CONFIG_FILE), &config)?;
+
+    let mut network = Network::new(det, &device);
+    let mut optim = optimizer(&config);
+    let (mut epochs_done, mut elapsed, mut csv) = (0, 0.0, csv_header(det.backbone));
+    if let Some(s) = state {
+        network = checkpoint::load_weights(&resume_dir, det, &device)
+            .context("loading the resume weights")?;
+        optim = optim
+            .load(resume_dir.join(format!("{OPTIMIZER_STEM}.bpk")))
+            .context("loading the optimizer state")?;
+        (epochs_done, elapsed, csv) = (s.epochs_done, s.elapsed_s, s.csv);
+        eprintln!(
+            "resuming {} after epoch {epochs_done} of {}",
+            run.display(),
+            config.epochs
+        );
+    }
+
+    let per_epoch = train_set.len().div_ceil(config.batch_size);
+    let total = per_epoch * config.epochs;
+    let size = det.preprocess.size;
+    let mut last_train = f64::NAN;
+    let mut last_valid = None;
+    for epoch in epochs_done..config.epochs {
+        let started = Instant::now();
+        device.seed(mix(config.seed, epoch as u64 + 1));
+        let mut rng = ChaCha8Rng::seed_from_u64(mix(config.seed, 1000 + epoch as u64));
+        let mut order: Vec<usize> = (0..train_set.len()).collect();
+        order.shuffle(&mut rng);
+        let bar = if show_progress {
+            ProgressBar::new(per_epoch as u64)
+        } else {
+            ProgressBar::hidden()
+        };
+        bar.set_style(
+            ProgressStyle::with_template("epoch {prefix} [{bar:30}] {pos}/{len} {msg} ({eta})")
+                .expect("template")
+                .progress_chars("=> "),
+        );
+        bar.set_prefix(format!("{}/{}", epoch + 1, config.epochs));
+        let mut sums = [0.0f64; 5];
+        for (k, chunk) in order.chunks(config.batch_size).enumerate() {
+            let iteration = epoch * per_epoch + k;
+            let images: Vec<&LabeledImage> = chunk.iter().map(|&i| train_set[i]).collect();
+            let flips: Vec<bool> = images
+                .iter()
+                .map(|_| config.augment && crate::targets::coin(&mut rng))
+                .collect();
+            let batch = make_batch(&images, &flips, size, &device);
+            let losses = batch_losses(&network, det, &batch, &mut rng);
+            let values: Vec<f64> = std::iter::once(&losses.total)
+                .chain(losses.parts.iter().map(|(_, t)| t))
+                .map(|t| infer::host(t.clone())[0] as f64)
+                .collect();
+            if !values[0].is_finite() {
+                bail!(
+                    "the loss became {} at epoch {} iteration {iteration}: lower --lr",
+                    values[0],
+                    epoch + 1
+                );
+            }
+            let lr = config.lr_at(iteration, total);
+            network = apply(network, &mut optim, lr, losses.total.backward());
+            for (s, v) in sums.iter_mut().zip(&values) {
+                *s += v;
+            }
+            let now = elapsed + started.elapsed().as_secs_f64();
+            let _ = writeln!(
+                csv,
+                "train,{},{iteration},{}",
+                epoch + 1,
+                row(&values, lr, now)
+            );
+            bar.set_message(format!("loss {:.4}", values[0]));
+            bar.inc(1);
+        }
+        bar.finish_and_clear();
+        let n = per_epoch as f64;
+        let means: Vec<f64> = sums.iter().map(|s| s / n).collect();
+        last_train = means[0];
+        let end_iteration = (epoch + 1) * per_epoch - 1;
+        elapsed += started.elapsed().as_secs_f64();
+        let lr = config.lr_at(end_iteration, total);
+        let _ = writeln!(
+            csv,
+            "train_epoch,{},{end_iteration},{}",
+            epoch + 1,
+            row(&means, lr, elapsed)
+        );
+        if !valid_set.is_empty() {
+            let v = validation_loss(&network, &config, &valid_set, &inner);
+            last_valid = Some(v[0]);
+            let _ = writeln!(
+                csv,
+                "valid_epoch,{},{end_iteration},{}",
+                epoch + 1,
+                row(&v, lr, elapsed)
+            );
+        }
+        if show_progress {
+            eprintln!(
+                "epoch {}/{}: train loss {:.4}{} ({:.0} s)",
+                epoch + 1,
+                config.epochs,
+                last_train,
+                last_valid
+                    .map(|v| format!(", valid loss {v:.4}"))
+                    .unwrap_or_default(),
+                elapsed
+            );
+        }
+        datasets::atomic::write_bytes(&run.join(LOSSES_FILE), csv.as_bytes())?;
+        save_resume(
+            &resume_dir,
+            &network,
+            &optim,
+            &ResumeState {
+                epochs_done: epoch + 1,
+                elapsed_s: elapsed,
+                csv: csv.clone(),
+            },
+        )?;
+        let meta = meta_for(&config, &network, epoch + 1, elapsed, None);
+        checkpoint::save(&run.join(CHECKPOINT_DIR), det, &network, &meta)?;
+    }
+
+    // Final evaluation on the test split.
+    let meta = meta_for(&config, &network, config.epochs, elapsed, None);
+    let detector = Detector::from_network(det.clone(), meta.clone(), &network, inner.clone());
+    let metrics = eval::evaluate_set(&detector, &test, config.batch_size);
+    datasets::atomic::write_json(&run.join(METRICS_FILE), &metrics)?;
+    let meta = CheckpointMeta {
+        metrics: Some(metrics.clone()),
+        ..meta
+    };
+    checkpoint::save(&run.join(CHECKPOINT_DIR), det, &network, &meta)?;
+    if last_train.is_nan() {
+        // Resumed after the last epoch: report the logged final losses.
+        last_train = final_value(&csv, "train_epoch").unwrap_or(f64::NAN);
+        last_valid = final_value(&csv, "valid_epoch");
+    }
+    Ok(TrainSummary {
+        metrics,
+        final_train_loss: last_train,
+        final_valid_loss: last_valid,
+        seconds: elapsed,
+    })
+}
+
+fn final_value(csv: &str, kind: &str) -> Option<f64> {
+    csv.lines()
+        .filter(|l| l.starts_with(&format!("{kind},")))
+        .last()?
+        .split(',')
+        .nth(3)?
+        .parse()
+        .ok()
+}
+
+fn row(values: &[f64], lr: f64, elapsed: f64) -> String {
+    let mut parts: Vec<String> = values.iter().map(|v| format!("{v:.6}")).collect();
+    parts.resize(5, "0".into());
+    format!("{},{lr:.6e},{elapsed:.2}", parts.join(","))
+}
+
+fn meta_for(
+    config: &TrainConfig,
+    network: &Network,
+    epochs: usize,
+    seconds: f64,
+    metrics: Option<EvalMetrics>,
+) -> CheckpointMeta {
+    CheckpointMeta {
+        format_version: checkpoint::FORMAT_VERSION,
+        backbone: config.detector.backbone,
+        width: config.detector.width,
+        dataset: config.data.display().to_string(),
+        epochs,
+        metrics,
+        pretrained: None,
+        train_seconds: seconds,
+        parameters: network.num_params(),
+    }
+}
+
+/// Mean loss over the validation images, without dropout or gradients and
+/// with a fixed sampling seed, so epochs compare.
+fn validation_loss(
+    network: &Network,
+    config: &TrainConfig,
+    valid: &[&LabeledImage],
+    device: &Device,
+) -> Vec<f64> {
+    let model = network.valid();
+    let mut rng = ChaCha8Rng::seed_from_u64(mix(config.seed, 0xda7a));
+    let mut sums = [0.0f64; 5];
+    let mut batches = 0;
+    for chunk in valid.chunks(config.batch_size) {
+        let flips = vec![false; chunk.len()];
+        let batch = make_batch(chunk, &flips, config.detector.preprocess.size, device);
+        let losses = batch_losses(&model, &config.detector, &batch, &mut rng);
+        for (s, t) in sums
+            .iter_mut()
+            .zip(std::iter::once(&losses.total).chain(losses.parts.iter().map(|(_, t)| t)))
+        {
+            *s += infer::host(t.clone())[0] as f64;
+        }
+        batches += 1;
+    }
+    sums.iter().map(|s| s / batches.max(1) as f64).collect()
+}
+
+/// Writes the resume state atomically (a new folder renamed into place).
+fn save_resume(
+    dir: &Path,
+    network: &Network,
+    optim: &ModuleOptimizer,
+    state: &ResumeState,
+) -> Result<()> {
+    let parent = dir.parent().unwrap_or(Path::new("."));
+    let tmp = tempfile::Builder::new()
+        .prefix(".tmp-resume-")
+        .tempdir_in(parent)?;
+    save_network(network, &tmp.path().join(checkpoint::WEIGHTS_STEM))?;
+    optim
+        .save(tmp.path().join(OPTIMIZER_STEM))
+        .context("writing the optimizer state")?;
+    datasets::atomic::write_json(&tmp.path().join(STATE_FILE), state)?;
+    let kept: PathBuf = tmp.keep();
+    if dir.exists() {
+        std::fs::remove_dir_all(dir).with_context(|| format!("replacing {}", dir.display()))?;
+    }
+    std::fs::rename(&kept, dir).with_context(|| format!("writing {}", dir.display()))?;
+    Ok(())
+}
