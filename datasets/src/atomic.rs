@@ -8,26 +8,19 @@ use std::path::Path;
 use crate::error::{DataError, Result};
 
 /// Writes `path` through `fill`, atomically.
-pub fn write_with(
-    path: &Path,
-    fill: impl FnOnce(&mut dyn Write) -> std::io::Result<()>,
-) -> Result<()> {
+pub fn write_with(path: &Path, fill: impl FnOnce(&mut dyn Write) -> std::io::Result<()>) -> Result<()> {
     let dir = match path.parent() {
         Some(p) if !p.as_os_str().is_empty() => p,
         _ => Path::new("."),
     };
     std::fs::create_dir_all(dir).map_err(|e| DataError::io(dir, e))?;
-    let tmp = tempfile::Builder::new()
-        .prefix(".tmp-")
-        .tempfile_in(dir)
-        .map_err(|e| DataError::io(dir, e))?;
+    let tmp = tempfile::Builder::new().prefix(".tmp-").tempfile_in(dir).map_err(|e| DataError::io(dir, e))?;
     {
         let mut out = BufWriter::new(tmp.as_file());
         fill(&mut out).map_err(|e| DataError::io(path, e))?;
         out.flush().map_err(|e| DataError::io(path, e))?;
     }
-    tmp.persist(path)
-        .map_err(|e| DataError::io(path, e.error))?;
+    tmp.persist(path).map_err(|e| DataError::io(path, e.error))?;
     Ok(())
 }
 
@@ -47,9 +40,7 @@ pub fn write_json<T: serde::Serialize>(path: &Path, value: &T) -> Result<()> {
 pub fn write_image(path: &Path, image: &image::DynamicImage) -> Result<()> {
     let format = image::ImageFormat::from_path(path).map_err(|e| DataError::image(path, e))?;
     let mut bytes = std::io::Cursor::new(Vec::new());
-    image
-        .write_to(&mut bytes, format)
-        .map_err(|e| DataError::image(path, e))?;
+    image.write_to(&mut bytes, format).map_err(|e| DataError::image(path, e))?;
     write_bytes(path, bytes.get_ref())
 }
 
@@ -61,13 +52,8 @@ pub fn read_bytes(path: &Path) -> Result<Vec<u8>> {
 /// Reads a whole text file, naming it in the error.
 pub fn read_text(path: &Path) -> Result<String> {
     let bytes = read_bytes(path)?;
-    String::from_utf8(bytes).map_err(|e| {
-        DataError::byte(
-            path,
-            e.utf8_error().valid_up_to() as u64,
-            "not valid UTF-8 text",
-        )
-    })
+    String::from_utf8(bytes)
+        .map_err(|e| DataError::byte(path, e.utf8_error().valid_up_to() as u64, "not valid UTF-8 text"))
 }
 
 /// Reads and decodes an image, naming the file in the error.

@@ -51,8 +51,6 @@ impl BBox {
         Self::new(self.x1 * sx, self.y1 * sy, self.x2 * sx, self.y2 * sy)
     }
     pub fn is_finite(&self) -> bool {
-        [self.x1, self.y1, self.x2, self.y2]
-            .iter()
-            .all(|v| v.is_finite())
+        [self.x1, self.y1, self.x2, self.y2].iter().all(|v| v.is_finite())
     }
 }

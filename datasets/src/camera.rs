@@ -27,31 +27,16 @@ pub struct PinholeCamera {
 impl PinholeCamera {
     /// A Kinect-like RGB camera: 640 x 480, 525 px focal length.
     pub fn kinect() -> Self {
-        Self {
-            width: 640,
-            height: 480,
-            fx: 525.0,
-            fy: 525.0,
-            cx: 319.5,
-            cy: 239.5,
-        }
+        Self { width: 640, height: 480, fx: 525.0, fy: 525.0, cx: 319.5, cy: 239.5 }
     }
 
     pub fn validate(&self) -> Result<(), String> {
-        let finite = [self.fx, self.fy, self.cx, self.cy]
-            .iter()
-            .all(|v| v.is_finite());
+        let finite = [self.fx, self.fy, self.cx, self.cy].iter().all(|v| v.is_finite());
         if !finite || self.fx <= 0.0 || self.fy <= 0.0 {
-            return Err(format!(
-                "focal lengths must be finite and positive (fx {}, fy {})",
-                self.fx, self.fy
-            ));
+            return Err(format!("focal lengths must be finite and positive (fx {}, fy {})", self.fx, self.fy));
         }
         if self.width == 0 || self.height == 0 {
-            return Err(format!(
-                "image size {}x{} is empty",
-                self.width, self.height
-            ));
+            return Err(format!("image size {}x{} is empty", self.width, self.height));
         }
         Ok(())
     }
@@ -62,20 +47,13 @@ impl PinholeCamera {
         if p_cam.z <= 1e-9 {
             return None;
         }
-        Some([
-            self.fx * p_cam.x / p_cam.z + self.cx + 0.5,
-            self.fy * p_cam.y / p_cam.z + self.cy + 0.5,
-        ])
+        Some([self.fx * p_cam.x / p_cam.z + self.cx + 0.5, self.fy * p_cam.y / p_cam.z + self.cy + 0.5])
     }
 
     /// The viewing ray through image coordinates `(u, v)`, in the camera
     /// frame, with unit z component (so `t` along it is depth).
     pub fn ray(&self, u: f64, v: f64) -> Vec3 {
-        Vec3::new(
-            (u - 0.5 - self.cx) / self.fx,
-            (v - 0.5 - self.cy) / self.fy,
-            1.0,
-        )
+        Vec3::new((u - 0.5 - self.cx) / self.fx, (v - 0.5 - self.cy) / self.fy, 1.0)
     }
 
     pub fn contains(&self, uv: [f64; 2]) -> bool {

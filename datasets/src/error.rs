@@ -12,17 +12,9 @@ pub enum DataError {
         source: std::io::Error,
     },
     #[error("{path}:{line}: {message}")]
-    Line {
-        path: PathBuf,
-        line: usize,
-        message: String,
-    },
+    Line { path: PathBuf, line: usize, message: String },
     #[error("{path}: byte {offset}: {message}")]
-    Byte {
-        path: PathBuf,
-        offset: u64,
-        message: String,
-    },
+    Byte { path: PathBuf, offset: u64, message: String },
     #[error("{path}: {message}")]
     Invalid { path: PathBuf, message: String },
     #[error("{path}: {source}")]
@@ -43,41 +35,21 @@ pub type Result<T, E = DataError> = std::result::Result<T, E>;
 
 impl DataError {
     pub fn io(path: &Path, source: std::io::Error) -> Self {
-        Self::Io {
-            path: path.to_path_buf(),
-            source,
-        }
+        Self::Io { path: path.to_path_buf(), source }
     }
     pub fn line(path: &Path, line: usize, message: impl Into<String>) -> Self {
-        Self::Line {
-            path: path.to_path_buf(),
-            line,
-            message: message.into(),
-        }
+        Self::Line { path: path.to_path_buf(), line, message: message.into() }
     }
     pub fn byte(path: &Path, offset: u64, message: impl Into<String>) -> Self {
-        Self::Byte {
-            path: path.to_path_buf(),
-            offset,
-            message: message.into(),
-        }
+        Self::Byte { path: path.to_path_buf(), offset, message: message.into() }
     }
     pub fn invalid(path: &Path, message: impl Into<String>) -> Self {
-        Self::Invalid {
-            path: path.to_path_buf(),
-            message: message.into(),
-        }
+        Self::Invalid { path: path.to_path_buf(), message: message.into() }
     }
     pub fn json(path: &Path, source: serde_json::Error) -> Self {
-        Self::Json {
-            path: path.to_path_buf(),
-            source,
-        }
+        Self::Json { path: path.to_path_buf(), source }
     }
     pub fn image(path: &Path, source: image::ImageError) -> Self {
-        Self::Image {
-            path: path.to_path_buf(),
-            source,
-        }
+        Self::Image { path: path.to_path_buf(), source }
     }
 }

@@ -14,9 +14,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::atomic;
 use crate::error::{DataError, Result};
-use crate::formats::{
-    self, CocoAnnotation, CocoCategory, CocoDataset, CocoImage, PcdData, Trajectory,
-};
+use crate::formats::{self, CocoAnnotation, CocoCategory, CocoDataset, CocoImage, PcdData, Trajectory};
 use crate::math::Pose3;
 use crate::preprocess::{PreprocessConfig, preprocess};
 use crate::world::labels::{CornerLabel, LabelConfig, visible_corners};
@@ -67,10 +65,7 @@ pub struct DetectionConfig {
 
 impl Default for DetectionConfig {
     fn default() -> Self {
-        Self {
-            images: 300,
-            train: 200,
-        }
+        Self { images: 300, train: 200 }
     }
 }
 
@@ -89,12 +84,7 @@ pub struct SequenceConfig {
 
 impl Default for SequenceConfig {
     fn default() -> Self {
-        Self {
-            speed_mps: 0.05,
-            rate_hz: 1.0,
-            frames: None,
-            turn_radius_m: 1.2,
-        }
+        Self { speed_mps: 0.05, rate_hz: 1.0, frames: None, turn_radius_m: 1.2 }
     }
 }
 
@@ -105,22 +95,14 @@ impl DatagenConfig {
         self.labels.validate().map_err(|m| format!("labels: {m}"))?;
         self.lidar.validate().map_err(|m| format!("lidar: {m}"))?;
         self.motion.validate().map_err(|m| format!("motion: {m}"))?;
-        self.preprocess
-            .validate()
-            .map_err(|m| format!("preprocess: {m}"))?;
+        self.preprocess.validate().map_err(|m| format!("preprocess: {m}"))?;
         let d = &self.detection;
         if d.train > d.images {
-            return Err(format!(
-                "detection: train split {} is larger than the {} images",
-                d.train, d.images
-            ));
+            return Err(format!("detection: train split {} is larger than the {} images", d.train, d.images));
         }
         let s = &self.sequence;
         if !(s.speed_mps.is_finite() && s.speed_mps > 0.0 && s.speed_mps <= 5.0) {
-            return Err(format!(
-                "sequence: speed {} m/s outside (0, 5]",
-                s.speed_mps
-            ));
+            return Err(format!("sequence: speed {} m/s outside (0, 5]", s.speed_mps));
         }
         if !(s.rate_hz.is_finite() && s.rate_hz > 0.0 && s.rate_hz <= 100.0) {
             return Err(format!("sequence: rate {} Hz outside (0, 100]", s.rate_hz));
@@ -129,10 +111,7 @@ impl DatagenConfig {
             return Err("sequence: frames must be at least 1".into());
         }
         if !(s.turn_radius_m > 0.1 && s.turn_radius_m < 3.0) {
-            return Err(format!(
-                "sequence: turn radius {} m outside (0.1, 3)",
-                s.turn_radius_m
-            ));
+            return Err(format!("sequence: turn radius {} m outside (0.1, 3)", s.turn_radius_m));
         }
         Ok(())
     }
@@ -177,14 +156,11 @@ fn progress(len: usize, what: &str) -> ProgressBar {
 /// Generates the detection data set into `out/detection` and the sequence
 /// into `out/sequence`, and previews into `out/preview`.
 pub fn generate(out: &Path, config: &DatagenConfig) -> Result<Summary> {
-    config
-        .validate()
-        .map_err(|m| DataError::invalid(out, format!("invalid configuration: {m}")))?;
+    config.validate().map_err(|m| DataError::invalid(out, format!("invalid configuration: {m}")))?;
     let world = World::new(&config.world, key(config.seed, stream::APPEARANCE, 0));
     let rig = Rig::default();
     atomic::write_json(&out.join("datagen.json"), config)?;
-    let (detection_images, detection_labels) =
-        write_detection_set(&out.join("detection"), &world, &rig, config)?;
+    let (detection_images, detection_labels) = write_detection_set(&out.join("detection"), &world, &rig, config)?;
     let sequence = write_sequence(&out.join("sequence"), &world, &rig, config)?;
     write_previews(&out.join("preview"), &world, &rig, &sequence)?;
     Ok(Summary {
@@ -196,11 +172,7 @@ pub fn generate(out: &Path, config: &DatagenConfig) -> Result<Summary> {
     })
 }
 
-fn coco_annotations(
-    labels: &[CornerLabel],
-    image_id: u64,
-    next_id: &mut u64,
-) -> Vec<CocoAnnotation> {
+fn coco_annotations(labels: &[CornerLabel], image_id: u64, next_id: &mut u64) -> Vec<CocoAnnotation> {
     labels
         .iter()
         .map(|l| {
@@ -220,11 +192,7 @@ fn coco_annotations(
 }
 
 fn categories() -> Vec<CocoCategory> {
-    vec![CocoCategory {
-        id: 1,
-        name: "corner".into(),
-        supercategory: Some("corner".into()),
-    }]
+    vec![CocoCategory { id: 1, name: "corner".into(), supercategory: Some("corner".into()) }]
 }
 
 /// A random robot pose in the free space, away from walls and boxes, whose
@@ -243,11 +211,7 @@ fn random_view(world: &World, rig: &Rig, rng: &mut ChaCha8Rng) -> Pose3 {
 /// A random robot pose in the free space, away from walls and boxes.
 fn random_robot_pose(world: &World, rng: &mut ChaCha8Rng) -> Pose3 {
     let layout = &world.layout;
-    let areas: Vec<f64> = layout
-        .regions
-        .iter()
-        .map(|r| (r.x[1] - r.x[0]) * (r.y[1] - r.y[0]))
-        .collect();
+    let areas: Vec<f64> = layout.regions.iter().map(|r| (r.x[1] - r.x[0]) * (r.y[1] - r.y[0])).collect();
     let total: f64 = areas.iter().sum();
     loop {
         let mut pick = rng.random_range(0.0..total);
@@ -259,9 +223,10 @@ fn random_robot_pose(world: &World, rng: &mut ChaCha8Rng) -> Pose3 {
         let margin = 0.35;
         let x = rng.random_range(r.x[0] + margin..r.x[1] - margin);
         let y = rng.random_range(r.y[0] + margin..r.y[1] - margin);
-        let blocked = layout.obstacles.iter().any(|b| {
-            x > b.x[0] - margin && x < b.x[1] + margin && y > b.y[0] - margin && y < b.y[1] + margin
-        });
+        let blocked = layout
+            .obstacles
+            .iter()
+            .any(|b| x > b.x[0] - margin && x < b.x[1] + margin && y > b.y[0] - margin && y < b.y[1] + margin);
         if blocked {
             continue;
         }
@@ -272,16 +237,8 @@ fn random_robot_pose(world: &World, rng: &mut ChaCha8Rng) -> Pose3 {
             } else {
                 r.x[1] - r.x[0] >= r.y[1] - r.y[0]
             };
-            let base = if along {
-                0.0
-            } else {
-                std::f64::consts::FRAC_PI_2
-            };
-            let flip = if rng.random_bool(0.5) {
-                std::f64::consts::PI
-            } else {
-                0.0
-            };
+            let base = if along { 0.0 } else { std::f64::consts::FRAC_PI_2 };
+            let flip = if rng.random_bool(0.5) { std::f64::consts::PI } else { 0.0 };
             base + flip + rng.random_range(-0.5..0.5)
         } else {
             rng.random_range(-std::f64::consts::PI..std::f64::consts::PI)
@@ -292,12 +249,7 @@ fn random_robot_pose(world: &World, rng: &mut ChaCha8Rng) -> Pose3 {
     }
 }
 
-fn write_detection_set(
-    dir: &Path,
-    world: &World,
-    rig: &Rig,
-    config: &DatagenConfig,
-) -> Result<(usize, usize)> {
+fn write_detection_set(dir: &Path, world: &World, rig: &Rig, config: &DatagenConfig) -> Result<(usize, usize)> {
     let n = config.detection.images;
     let bar = progress(n, "detection");
     let results: Vec<Result<(CocoImage, Vec<CornerLabel>)>> = (0..n)
@@ -328,14 +280,8 @@ fn write_detection_set(
         .collect();
     bar.finish_and_clear();
     let mut splits = [
-        CocoDataset {
-            categories: categories(),
-            ..Default::default()
-        },
-        CocoDataset {
-            categories: categories(),
-            ..Default::default()
-        },
+        CocoDataset { categories: categories(), ..Default::default() },
+        CocoDataset { categories: categories(), ..Default::default() },
     ];
     let mut next_id = 0;
     let mut label_count = 0;
@@ -343,9 +289,7 @@ fn write_detection_set(
         let (entry, labels) = result?;
         let split = &mut splits[usize::from(i >= config.detection.train)];
         label_count += labels.len();
-        split
-            .annotations
-            .extend(coco_annotations(&labels, entry.id, &mut next_id));
+        split.annotations.extend(coco_annotations(&labels, entry.id, &mut next_id));
         split.images.push(entry);
     }
     formats::write_coco(&dir.join("train.json"), &splits[0])?;
@@ -372,12 +316,7 @@ pub fn stamp_name(stamp: f64) -> String {
     format!("{stamp:.6}")
 }
 
-fn write_sequence(
-    dir: &Path,
-    world: &World,
-    rig: &Rig,
-    config: &DatagenConfig,
-) -> Result<Sequence> {
+fn write_sequence(dir: &Path, world: &World, rig: &Rig, config: &DatagenConfig) -> Result<Sequence> {
     let s = &config.sequence;
     let route = Route::new(&world.layout.route, s.turn_radius_m);
     let length = route.length();
@@ -397,10 +336,7 @@ fn write_sequence(
             let world_from_robot = pose_at(stamp);
             let world_from_camera = world_from_robot * rig.robot_from_camera;
             // Lighting drifts slowly along the route, noise changes every frame.
-            let mut lighting = Lighting::varied(
-                key(config.seed, stream::SEQUENCE_LIGHT, 0),
-                layout.lights.len(),
-            );
+            let mut lighting = Lighting::varied(key(config.seed, stream::SEQUENCE_LIGHT, 0), layout.lights.len());
             lighting.gain *= 1.0 + 0.15 * (stamp as f32 * 0.01).sin();
             lighting.noise_seed = key(config.seed, stream::SEQUENCE_LIGHT, k as u64 + 1);
             let image = render(world, &rig.camera, &world_from_camera, &lighting);
@@ -412,53 +348,26 @@ fn write_sequence(
                 key(config.seed, stream::LIDAR, k as u64),
             );
             let name = stamp_name(stamp);
-            atomic::write_image(
-                &dir.join("rgb").join(format!("{name}.png")),
-                &DynamicImage::ImageRgb8(image),
-            )?;
-            formats::write_pcd(
-                &dir.join("cloud").join(format!("{name}.pcd")),
-                &cloud,
-                PcdData::Binary,
-            )?;
+            atomic::write_image(&dir.join("rgb").join(format!("{name}.png")), &DynamicImage::ImageRgb8(image))?;
+            formats::write_pcd(&dir.join("cloud").join(format!("{name}.pcd")), &cloud, PcdData::Binary)?;
             bar.inc(1);
-            Ok(Frame {
-                stamp,
-                world_from_robot,
-                labels,
-                cloud,
-            })
+            Ok(Frame { stamp, world_from_robot, labels, cloud })
         })
         .collect();
     bar.finish_and_clear();
     let frames: Vec<Frame> = frames.into_iter().collect::<Result<_>>()?;
 
     let duration = (count - 1) as f64 / s.rate_hz;
-    let odometry = simulate_odometry(
-        &pose_at,
-        duration,
-        &config.motion,
-        key(config.seed, stream::ODOMETRY, 0),
-    );
-    let imu = simulate_imu(
-        &pose_at,
-        duration,
-        &config.motion,
-        key(config.seed, stream::IMU, 0),
-    );
+    let odometry = simulate_odometry(&pose_at, duration, &config.motion, key(config.seed, stream::ODOMETRY, 0));
+    let imu = simulate_imu(&pose_at, duration, &config.motion, key(config.seed, stream::IMU, 0));
     formats::write_odometry(&dir.join("odom.csv"), &odometry)?;
     formats::write_imu(&dir.join("imu.csv"), &imu)?;
     let mut truth = Trajectory::default();
-    frames
-        .iter()
-        .for_each(|f| truth.push(f.stamp, f.world_from_robot));
+    frames.iter().for_each(|f| truth.push(f.stamp, f.world_from_robot));
     formats::write_tum(&dir.join("groundtruth.txt"), &truth)?;
     formats::write_calibration(&dir.join("calib.json"), &rig.calibration())?;
 
-    let mut labels = CocoDataset {
-        categories: categories(),
-        ..Default::default()
-    };
+    let mut labels = CocoDataset { categories: categories(), ..Default::default() };
     let mut next_id = 0;
     for (k, f) in frames.iter().enumerate() {
         let id = k as u64 + 1;
@@ -468,17 +377,11 @@ fn write_sequence(
             width: rig.camera.width,
             height: rig.camera.height,
         });
-        labels
-            .annotations
-            .extend(coco_annotations(&f.labels, id, &mut next_id));
+        labels.annotations.extend(coco_annotations(&f.labels, id, &mut next_id));
     }
     formats::write_coco(&dir.join("labels.json"), &labels)?;
     atomic::write_json(&dir.join("world.json"), &WorldDescription::of(world))?;
-    Ok(Sequence {
-        frames,
-        route_length_m: length,
-        frames_after_route_end,
-    })
+    Ok(Sequence { frames, route_length_m: length, frames_after_route_end })
 }
 
 /// `world.json`: what the ground truth knows about the area, for per-level
@@ -505,27 +408,13 @@ impl<'a> WorldDescription<'a> {
             .level_heights_m
             .iter()
             .enumerate()
-            .map(|(i, &h)| LevelDescription {
-                name: format!("level {}", i + 1),
-                floor_height_m: h,
-            })
+            .map(|(i, &h)| LevelDescription { name: format!("level {}", i + 1), floor_height_m: h })
             .collect();
-        Self {
-            config: &layout.config,
-            levels,
-            regions: &layout.regions,
-            corners: &layout.corners,
-        }
+        Self { config: &layout.config, levels, regions: &layout.regions, corners: &layout.corners }
     }
 }
 
-const CORNER_COLOURS: [[u8; 3]; 5] = [
-    [0, 220, 0],
-    [0, 160, 255],
-    [255, 200, 0],
-    [255, 60, 60],
-    [220, 0, 220],
-];
+const CORNER_COLOURS: [[u8; 3]; 5] = [[0, 220, 0], [0, 160, 255], [255, 200, 0], [255, 60, 60], [220, 0, 220]];
 
 /// Draws labeled boxes (colour by corner type) and their corner points.
 pub fn draw_labels(image: &mut RgbImage, labels: &[CornerLabel]) {
@@ -535,39 +424,22 @@ pub fn draw_labels(image: &mut RgbImage, labels: &[CornerLabel]) {
         let rect = imageproc::rect::Rect::at(b.x1 as i32, b.y1 as i32)
             .of_size(b.width().max(1.0) as u32, b.height().max(1.0) as u32);
         imageproc::drawing::draw_hollow_rect_mut(image, rect, colour);
-        imageproc::drawing::draw_filled_circle_mut(
-            image,
-            (l.point[0] as i32, l.point[1] as i32),
-            2,
-            colour,
-        );
+        imageproc::drawing::draw_filled_circle_mut(image, (l.point[0] as i32, l.point[1] as i32), 2, colour);
     }
 }
 
 fn write_previews(dir: &Path, world: &World, rig: &Rig, sequence: &Sequence) -> Result<()> {
     let n = sequence.frames.len();
-    let picks: Vec<usize> = if n <= 4 {
-        (0..n).collect()
-    } else {
-        (0..4).map(|i| i * (n - 1) / 3).collect()
-    };
+    let picks: Vec<usize> = if n <= 4 { (0..n).collect() } else { (0..4).map(|i| i * (n - 1) / 3).collect() };
     let seq_dir: PathBuf = dir.parent().map(|p| p.join("sequence")).unwrap_or_default();
     for k in picks {
         let frame = &sequence.frames[k];
-        let path = seq_dir
-            .join("rgb")
-            .join(format!("{}.png", stamp_name(frame.stamp)));
+        let path = seq_dir.join("rgb").join(format!("{}.png", stamp_name(frame.stamp)));
         let mut image = atomic::read_image(&path)?.to_rgb8();
         draw_labels(&mut image, &frame.labels);
-        atomic::write_image(
-            &dir.join(format!("frame_{k:05}_labels.png")),
-            &DynamicImage::ImageRgb8(image),
-        )?;
+        atomic::write_image(&dir.join(format!("frame_{k:05}_labels.png")), &DynamicImage::ImageRgb8(image))?;
     }
-    atomic::write_image(
-        &dir.join("topdown.png"),
-        &DynamicImage::ImageRgb8(top_down(world, rig, sequence)),
-    )
+    atomic::write_image(&dir.join("topdown.png"), &DynamicImage::ImageRgb8(top_down(world, rig, sequence)))
 }
 
 /// A map of the area seen from above: floors shaded by height, walls, the
@@ -583,16 +455,8 @@ fn top_down(world: &World, rig: &Rig, sequence: &Sequence) -> RgbImage {
         y1 = y1.max(r.y[1]);
     }
     let pad = 1.0;
-    let (w, h) = (
-        ((x1 - x0 + 2.0 * pad) * px_per_m) as u32,
-        ((y1 - y0 + 2.0 * pad) * px_per_m) as u32,
-    );
-    let to_px = |x: f64, y: f64| {
-        (
-            ((x - x0 + pad) * px_per_m) as f32,
-            ((y1 + pad - y) * px_per_m) as f32,
-        )
-    };
+    let (w, h) = (((x1 - x0 + 2.0 * pad) * px_per_m) as u32, ((y1 - y0 + 2.0 * pad) * px_per_m) as u32);
+    let to_px = |x: f64, y: f64| (((x - x0 + pad) * px_per_m) as f32, ((y1 + pad - y) * px_per_m) as f32);
     let mut image = RgbImage::from_pixel(w, h, Rgb([255, 255, 255]));
     let [lo, _, hi] = layout.config.level_heights_m;
     let ceiling = layout.config.ceiling_height_m;
@@ -606,11 +470,7 @@ fn top_down(world: &World, rig: &Rig, sequence: &Sequence) -> RgbImage {
     }
     let colour_of = |z: f64| {
         let f = ((z - lo) / (ceiling - lo)).clamp(0.0, 1.0);
-        Rgb([
-            (255.0 * f) as u8,
-            (80.0 + 100.0 * (1.0 - (2.0 * f - 1.0).abs())) as u8,
-            (255.0 * (1.0 - f)) as u8,
-        ])
+        Rgb([(255.0 * f) as u8, (80.0 + 100.0 * (1.0 - (2.0 * f - 1.0).abs())) as u8, (255.0 * (1.0 - f)) as u8])
     };
     let step = (sequence.frames.len() / 40).max(1);
     for frame in sequence.frames.iter().step_by(step) {
@@ -623,30 +483,13 @@ fn top_down(world: &World, rig: &Rig, sequence: &Sequence) -> RgbImage {
             }
         }
     }
-    for s in layout
-        .surfaces
-        .iter()
-        .filter(|s| s.kind == crate::world::surface::SurfaceKind::Wall)
-    {
+    for s in layout.surfaces.iter().filter(|s| s.kind == crate::world::surface::SurfaceKind::Wall) {
         let (a, b) = (s.vertices[0], s.vertices[1]);
-        imageproc::drawing::draw_line_segment_mut(
-            &mut image,
-            to_px(a.x, a.y),
-            to_px(b.x, b.y),
-            Rgb([0, 0, 0]),
-        );
+        imageproc::drawing::draw_line_segment_mut(&mut image, to_px(a.x, a.y), to_px(b.x, b.y), Rgb([0, 0, 0]));
     }
     for pair in sequence.frames.windows(2) {
-        let (a, b) = (
-            pair[0].world_from_robot.translation.vector,
-            pair[1].world_from_robot.translation.vector,
-        );
-        imageproc::drawing::draw_line_segment_mut(
-            &mut image,
-            to_px(a.x, a.y),
-            to_px(b.x, b.y),
-            Rgb([200, 0, 0]),
-        );
+        let (a, b) = (pair[0].world_from_robot.translation.vector, pair[1].world_from_robot.translation.vector);
+        imageproc::drawing::draw_line_segment_mut(&mut image, to_px(a.x, a.y), to_px(b.x, b.y), Rgb([200, 0, 0]));
     }
     for c in &layout.corners {
         let (u, v) = to_px(c.position[0], c.position[1]);

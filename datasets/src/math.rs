@@ -25,11 +25,7 @@ pub fn pose_from_rows(rows: &RowsMat4) -> Option<Pose3> {
         return None;
     }
     let last = rows[3];
-    if last[0].abs() > 1e-9
-        || last[1].abs() > 1e-9
-        || last[2].abs() > 1e-9
-        || (last[3] - 1.0).abs() > 1e-9
-    {
+    if last[0].abs() > 1e-9 || last[1].abs() > 1e-9 || last[2].abs() > 1e-9 || (last[3] - 1.0).abs() > 1e-9 {
         return None;
     }
     let r = Mat3::from_fn(|i, j| rows[i][j]);

@@ -20,11 +20,7 @@ pub struct PreprocessConfig {
 
 impl Default for PreprocessConfig {
     fn default() -> Self {
-        Self {
-            size: 224,
-            canny_low: 40.0,
-            canny_high: 100.0,
-        }
+        Self { size: 224, canny_low: 40.0, canny_high: 100.0 }
     }
 }
 
@@ -48,12 +44,7 @@ impl PreprocessConfig {
 /// The config must be valid (see [`PreprocessConfig::validate`]).
 pub fn preprocess(image: &DynamicImage, config: &PreprocessConfig) -> GrayImage {
     let gray = image.to_luma8();
-    let small = imageops::resize(
-        &gray,
-        config.size,
-        config.size,
-        imageops::FilterType::Triangle,
-    );
+    let small = imageops::resize(&gray, config.size, config.size, imageops::FilterType::Triangle);
     imageproc::edges::canny(&small, config.canny_low, config.canny_high)
 }
 
@@ -66,10 +57,7 @@ pub struct ImageToNet {
 
 impl ImageToNet {
     pub fn new(image_width: u32, image_height: u32, net_size: u32) -> Self {
-        Self {
-            sx: net_size as f32 / image_width as f32,
-            sy: net_size as f32 / image_height as f32,
-        }
+        Self { sx: net_size as f32 / image_width as f32, sy: net_size as f32 / image_height as f32 }
     }
     pub fn to_net(&self, b: &BBox) -> BBox {
         b.scale(self.sx, self.sy)
@@ -91,11 +79,7 @@ mod tests {
     fn a_square_gives_edges_on_its_outline_only() {
         // A bright square on a dark background, 640 x 480.
         let img = RgbImage::from_fn(640, 480, |x, y| {
-            if (200..440).contains(&x) && (120..360).contains(&y) {
-                Rgb([220, 200, 180])
-            } else {
-                Rgb([20, 30, 40])
-            }
+            if (200..440).contains(&x) && (120..360).contains(&y) { Rgb([220, 200, 180]) } else { Rgb([20, 30, 40]) }
         });
         let edges = preprocess(&DynamicImage::ImageRgb8(img), &PreprocessConfig::default());
         assert_eq!(edges.dimensions(), (224, 224));
@@ -108,17 +92,9 @@ mod tests {
             }
             on += 1;
             let (x, y) = (x as f32 + 0.5, y as f32 + 0.5);
-            let d = [
-                (x - outline.x1).abs(),
-                (x - outline.x2).abs(),
-                (y - outline.y1).abs(),
-                (y - outline.y2).abs(),
-            ];
+            let d = [(x - outline.x1).abs(), (x - outline.x2).abs(), (y - outline.y1).abs(), (y - outline.y2).abs()];
             let near = d.iter().cloned().fold(f32::INFINITY, f32::min);
-            assert!(
-                near <= 2.0,
-                "edge pixel ({x}, {y}) is {near} px from the square's outline"
-            );
+            assert!(near <= 2.0, "edge pixel ({x}, {y}) is {near} px from the square's outline");
         }
         // The outline is about 2 * (84 + 112) = 392 net pixels long; a step
         // edge comes out one to two pixels thick.
@@ -132,23 +108,14 @@ mod tests {
         let n = map.to_net(&b);
         assert!((n.x1 - 35.0).abs() < 1e-4 && (n.y1 - 50.0 * 224.0 / 480.0).abs() < 1e-4);
         let back = map.to_image(&n);
-        for (a, b) in [
-            (back.x1, b.x1),
-            (back.y1, b.y1),
-            (back.x2, b.x2),
-            (back.y2, b.y2),
-        ] {
+        for (a, b) in [(back.x1, b.x1), (back.y1, b.y1), (back.x2, b.x2), (back.y2, b.y2)] {
             assert!((a - b).abs() < 1e-3);
         }
     }
 
     #[test]
     fn invalid_thresholds_are_reported() {
-        let c = PreprocessConfig {
-            canny_low: 90.0,
-            canny_high: 10.0,
-            ..Default::default()
-        };
+        let c = PreprocessConfig { canny_low: 90.0, canny_high: 10.0, ..Default::default() };
         assert!(c.validate().unwrap_err().contains("low"));
         assert!(PreprocessConfig::default().validate().is_ok());
     }

@@ -4,14 +4,8 @@
 use std::process::Command;
 
 fn datagen(args: &[&str]) -> (bool, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_datagen"))
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
+    let out = Command::new(env!("CARGO_BIN_EXE_datagen")).args(args).output().unwrap();
+    (out.status.success(), String::from_utf8_lossy(&out.stderr).into_owned())
 }
 
 #[test]
@@ -23,15 +17,9 @@ fn bad_flags_and_settings_are_named() {
     let (ok, err) = datagen(&["--out", o, "--speed", "-1"]);
     assert!(!ok && err.contains("speed -1 m/s"), "{err}");
     let (ok, err) = datagen(&["--out", o, "--speed", "fast"]);
-    assert!(
-        !ok && err.contains("--speed") && err.contains("fast"),
-        "{err}"
-    );
+    assert!(!ok && err.contains("--speed") && err.contains("fast"), "{err}");
     let (ok, err) = datagen(&["--out", o, "--images", "10", "--train", "20"]);
-    assert!(
-        !ok && err.contains("train split 20 is larger than the 10 images"),
-        "{err}"
-    );
+    assert!(!ok && err.contains("train split 20 is larger than the 10 images"), "{err}");
     let (ok, err) = datagen(&["--out", o, "--frames", "0"]);
     assert!(!ok && err.contains("frames must be at least 1"), "{err}");
     let (ok, err) = datagen(&["--out", o, "--colour", "red"]);
@@ -44,10 +32,7 @@ fn bad_flags_and_settings_are_named() {
     assert!(!ok && err.contains("ramp slope 45"), "{err}");
     std::fs::write(&settings, r#"{"wrld": {}}"#).unwrap();
     let (ok, err) = datagen(&["--out", o, "--config", settings.to_str().unwrap()]);
-    assert!(
-        !ok && err.contains("settings.json") && err.contains("wrld"),
-        "{err}"
-    );
+    assert!(!ok && err.contains("settings.json") && err.contains("wrld"), "{err}");
     let (ok, err) = datagen(&["--out", o, "--config", "/nonexistent/settings.json"]);
     assert!(!ok && err.contains("/nonexistent/settings.json"), "{err}");
 
@@ -62,8 +47,7 @@ fn a_tiny_run_writes_the_documented_layout() {
     let dir = tempfile::tempdir().unwrap();
     let o = dir.path().to_str().unwrap();
     let (ok, err) = datagen(&[
-        "--out", o, "--images", "3", "--train", "2", "--frames", "2", "--speed", "0.5", "--rate",
-        "2", "--seed", "11",
+        "--out", o, "--images", "3", "--train", "2", "--frames", "2", "--speed", "0.5", "--rate", "2", "--seed", "11",
     ]);
     assert!(ok, "{err}");
     for rel in [
@@ -85,8 +69,7 @@ fn a_tiny_run_writes_the_documented_layout() {
         assert!(dir.path().join(rel).is_file(), "{rel} is missing");
     }
     let settings: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.path().join("datagen.json")).unwrap())
-            .unwrap();
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("datagen.json")).unwrap()).unwrap();
     assert_eq!(settings["seed"], 11);
     assert_eq!(settings["sequence"]["rate_hz"], 2.0);
 }

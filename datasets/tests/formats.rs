@@ -11,9 +11,7 @@ use datasets::math::Pose3;
 use nalgebra::{Point3, Translation3, UnitQuaternion, Vector3};
 
 fn real(rel: &str) -> PathBuf {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/data")
-        .join(rel);
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data").join(rel);
     assert!(
         path.exists(),
         "real-data file {} is missing: these tests need the shared data folder beside the project",
@@ -23,21 +21,12 @@ fn real(rel: &str) -> PathBuf {
 }
 
 fn sample_cloud(with_intensity: bool) -> PointCloud {
-    let points: Vec<Point3<f32>> = (0..257)
-        .map(|i| {
-            Point3::new(
-                i as f32 * 0.25 - 3.0,
-                (i as f32).sin() * 7.123,
-                1e-3 * i as f32,
-            )
-        })
-        .collect();
+    let points: Vec<Point3<f32>> =
+        (0..257).map(|i| Point3::new(i as f32 * 0.25 - 3.0, (i as f32).sin() * 7.123, 1e-3 * i as f32)).collect();
     let intensity = with_intensity.then(|| (0..257).map(|i| (i % 13) as f32 / 13.0).collect());
     let mut cloud = PointCloud::new(points, intensity);
-    cloud.viewpoint = Pose3::from_parts(
-        Translation3::new(1.0, -2.0, 0.5),
-        UnitQuaternion::from_euler_angles(0.1, -0.2, 0.3),
-    );
+    cloud.viewpoint =
+        Pose3::from_parts(Translation3::new(1.0, -2.0, 0.5), UnitQuaternion::from_euler_angles(0.1, -0.2, 0.3));
     cloud
 }
 
@@ -56,10 +45,7 @@ fn pcd_round_trips_in_all_three_data_kinds() {
             let back = read_pcd(&path, NonFinite::Drop).unwrap();
             assert_eq!(back.points, cloud.points, "{kind:?}");
             assert_eq!(back.intensity, cloud.intensity, "{kind:?}");
-            assert!(
-                (back.viewpoint.translation.vector - cloud.viewpoint.translation.vector).norm()
-                    < 1e-9
-            );
+            assert!((back.viewpoint.translation.vector - cloud.viewpoint.translation.vector).norm() < 1e-9);
             assert!(back.viewpoint.rotation.angle_to(&cloud.viewpoint.rotation) < 1e-6);
         }
     }
@@ -73,10 +59,7 @@ fn pcd_malformed_files_name_the_line_or_byte() {
 
     std::fs::write(&p, format!("{header}DATA ascii\n1 2 3\n4 five 6\n")).unwrap();
     let m = message(read_pcd(&p, NonFinite::Drop).unwrap_err());
-    assert!(
-        m.contains("bad.pcd:11") && m.contains("`five` is not a number"),
-        "{m}"
-    );
+    assert!(m.contains("bad.pcd:11") && m.contains("`five` is not a number"), "{m}");
 
     std::fs::write(&p, format!("{header}DATA ascii\n1 2 3\n")).unwrap();
     let m = message(read_pcd(&p, NonFinite::Drop).unwrap_err());
@@ -86,24 +69,13 @@ fn pcd_malformed_files_name_the_line_or_byte() {
     bytes.extend_from_slice(&[0u8; 20]);
     std::fs::write(&p, &bytes).unwrap();
     let m = message(read_pcd(&p, NonFinite::Drop).unwrap_err());
-    assert!(
-        m.contains("binary data ends early") && m.contains("need 24 bytes, found 20"),
-        "{m}"
-    );
+    assert!(m.contains("binary data ends early") && m.contains("need 24 bytes, found 20"), "{m}");
 
-    std::fs::write(
-        &p,
-        "VERSION 0.7\nFIELDS x y z\nSIZE 4 4\nTYPE F F F\nPOINTS 1\nDATA ascii\n1 2 3\n",
-    )
-    .unwrap();
+    std::fs::write(&p, "VERSION 0.7\nFIELDS x y z\nSIZE 4 4\nTYPE F F F\nPOINTS 1\nDATA ascii\n1 2 3\n").unwrap();
     let m = message(read_pcd(&p, NonFinite::Drop).unwrap_err());
     assert!(m.contains("bad.pcd:6") && m.contains("SIZE has 2"), "{m}");
 
-    std::fs::write(
-        &p,
-        "VERSION 0.7\nFIELDS a b c\nSIZE 4 4 4\nTYPE F F F\nPOINTS 1\nDATA ascii\n1 2 3\n",
-    )
-    .unwrap();
+    std::fs::write(&p, "VERSION 0.7\nFIELDS a b c\nSIZE 4 4 4\nTYPE F F F\nPOINTS 1\nDATA ascii\n1 2 3\n").unwrap();
     assert!(message(read_pcd(&p, NonFinite::Drop).unwrap_err()).contains("no `x` field"));
 
     // A compressed block whose LZF stream is corrupt: the error gives its byte offset.
@@ -114,10 +86,7 @@ fn pcd_malformed_files_name_the_line_or_byte() {
     broken[data_at + 8] = 0xff; // a back-reference far before the start of the output
     std::fs::write(&p, &broken).unwrap();
     let m = message(read_pcd(&p, NonFinite::Drop).unwrap_err());
-    assert!(
-        m.contains(&format!("byte {}", data_at + 8)) && m.contains("LZF"),
-        "{m}"
-    );
+    assert!(m.contains(&format!("byte {}", data_at + 8)) && m.contains("LZF"), "{m}");
     std::fs::write(&p, &good[..good.len() - 10]).unwrap();
     assert!(message(read_pcd(&p, NonFinite::Drop).unwrap_err()).contains("truncated"));
 
@@ -129,7 +98,11 @@ fn pcd_malformed_files_name_the_line_or_byte() {
 fn non_finite_points_are_dropped_and_counted_or_rejected() {
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("nan.pcd");
-    std::fs::write(&p, "FIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nWIDTH 3\nHEIGHT 1\nDATA ascii\n1 2 3\nnan nan nan\n4 5 6\n").unwrap();
+    std::fs::write(
+        &p,
+        "FIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nWIDTH 3\nHEIGHT 1\nDATA ascii\n1 2 3\nnan nan nan\n4 5 6\n",
+    )
+    .unwrap();
     let cloud = read_pcd(&p, NonFinite::Drop).unwrap();
     assert_eq!((cloud.len(), cloud.dropped_non_finite), (2, 1));
     assert_eq!(cloud.points[1], Point3::new(4.0, 5.0, 6.0));
@@ -143,20 +116,10 @@ fn ply_round_trips_in_ascii_and_both_binaries() {
     for with_intensity in [false, true] {
         let mut cloud = sample_cloud(with_intensity);
         cloud.viewpoint = Pose3::identity();
-        for format in [
-            PlyFormat::Ascii,
-            PlyFormat::BinaryLittleEndian,
-            PlyFormat::BinaryBigEndian,
-        ] {
-            let path = dir
-                .path()
-                .join(format!("c-{with_intensity}-{format:?}.ply"));
+        for format in [PlyFormat::Ascii, PlyFormat::BinaryLittleEndian, PlyFormat::BinaryBigEndian] {
+            let path = dir.path().join(format!("c-{with_intensity}-{format:?}.ply"));
             write_ply(&path, &cloud, format).unwrap();
-            assert_eq!(
-                read_cloud(&path, NonFinite::Drop).unwrap(),
-                cloud,
-                "{format:?}"
-            );
+            assert_eq!(read_cloud(&path, NonFinite::Drop).unwrap(), cloud, "{format:?}");
         }
     }
 }
@@ -167,43 +130,27 @@ fn ply_with_doubles_colours_and_faces_as_open3d_writes() {
     let dir = tempfile::tempdir().unwrap();
     let header = "ply\nformat binary_little_endian 1.0\ncomment Created by Open3D\nelement vertex 2\nproperty double x\nproperty double y\nproperty double z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n";
     let mut bytes = header.as_bytes().to_vec();
-    for (p, rgb) in [
-        ([1.5f64, -2.0, 3.25], [255u8, 0, 0]),
-        ([0.0, 0.5, -1.0], [0, 255, 0]),
-    ] {
-        p.iter()
-            .for_each(|v| bytes.extend_from_slice(&v.to_le_bytes()));
+    for (p, rgb) in [([1.5f64, -2.0, 3.25], [255u8, 0, 0]), ([0.0, 0.5, -1.0], [0, 255, 0])] {
+        p.iter().for_each(|v| bytes.extend_from_slice(&v.to_le_bytes()));
         bytes.extend_from_slice(&rgb);
     }
     bytes.push(3);
-    [0i32, 1, 0]
-        .iter()
-        .for_each(|v| bytes.extend_from_slice(&v.to_le_bytes()));
+    [0i32, 1, 0].iter().for_each(|v| bytes.extend_from_slice(&v.to_le_bytes()));
     let path = dir.path().join("o3d.ply");
     std::fs::write(&path, &bytes).unwrap();
     let cloud = read_ply(&path, NonFinite::Drop).unwrap();
-    assert_eq!(
-        cloud.points,
-        vec![Point3::new(1.5, -2.0, 3.25), Point3::new(0.0, 0.5, -1.0)]
-    );
+    assert_eq!(cloud.points, vec![Point3::new(1.5, -2.0, 3.25), Point3::new(0.0, 0.5, -1.0)]);
     assert!(cloud.intensity.is_none());
 
     std::fs::write(&path, &bytes[..bytes.len() - 5]).unwrap();
     let m = message(read_ply(&path, NonFinite::Drop).unwrap_err());
-    assert!(
-        m.contains("o3d.ply: byte") && m.contains("ends inside the binary body"),
-        "{m}"
-    );
+    assert!(m.contains("o3d.ply: byte") && m.contains("ends inside the binary body"), "{m}");
 
     let ascii = "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\nend_header\n1 2 3\n4 oops 6\n";
     std::fs::write(&path, ascii).unwrap();
     let m = message(read_ply(&path, NonFinite::Drop).unwrap_err());
     assert!(m.contains("o3d.ply:9") && m.contains("`oops`"), "{m}");
-    std::fs::write(
-        &path,
-        "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nend_header\n1\n",
-    )
-    .unwrap();
+    std::fs::write(&path, "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nend_header\n1\n").unwrap();
     assert!(message(read_ply(&path, NonFinite::Drop).unwrap_err()).contains("no `y` property"));
 }
 
@@ -218,30 +165,17 @@ fn kitti_bin_round_trips_and_rejects_a_partial_record() {
     let mut bytes = std::fs::read(&path).unwrap();
     bytes.truncate(bytes.len() - 3);
     std::fs::write(&path, &bytes).unwrap();
-    assert!(
-        message(read_cloud(&path, NonFinite::Drop).unwrap_err()).contains("not a multiple of 16")
-    );
+    assert!(message(read_cloud(&path, NonFinite::Drop).unwrap_err()).contains("not a multiple of 16"));
     let unknown = dir.path().join("scan.xyz");
     std::fs::write(&unknown, "1 2 3").unwrap();
-    assert!(
-        message(read_cloud(&unknown, NonFinite::Drop).unwrap_err())
-            .contains("unknown point cloud extension")
-    );
+    assert!(message(read_cloud(&unknown, NonFinite::Drop).unwrap_err()).contains("unknown point cloud extension"));
 }
 
 #[test]
 fn real_pcl_compressed_room_scans_equal_their_uncompressed_copies() {
     for name in ["room_scan1", "room_scan2"] {
-        let packed = read_pcd(
-            &real(&format!("pcl_room_scans/{name}.pcd")),
-            NonFinite::Drop,
-        )
-        .unwrap();
-        let plain = read_pcd(
-            &real(&format!("pcl_room_scans/{name}_binary.pcd")),
-            NonFinite::Drop,
-        )
-        .unwrap();
+        let packed = read_pcd(&real(&format!("pcl_room_scans/{name}.pcd")), NonFinite::Drop).unwrap();
+        let plain = read_pcd(&real(&format!("pcl_room_scans/{name}_binary.pcd")), NonFinite::Drop).unwrap();
         assert!(packed.len() > 112_000, "{name}: {} points", packed.len());
         assert_eq!(packed.points, plain.points, "{name}");
     }
@@ -254,11 +188,7 @@ fn real_organized_kinect_clouds_drop_their_nans_on_purpose() {
     assert_eq!(cloud.len() + cloud.dropped_non_finite, 640 * 480);
     assert!(read_pcd(&real("pcl_room_scans/capture0001.pcd"), NonFinite::Reject).is_err());
     // x y z rgb, compressed: rgb is skipped.
-    let table = read_pcd(
-        &real("pcl_room_scans/table_scene_mug_stereo_textured.pcd"),
-        NonFinite::Drop,
-    )
-    .unwrap();
+    let table = read_pcd(&real("pcl_room_scans/table_scene_mug_stereo_textured.pcd"), NonFinite::Drop).unwrap();
     assert_eq!(table.len() + table.dropped_non_finite, 640 * 480);
 }
 
@@ -266,11 +196,7 @@ fn real_organized_kinect_clouds_drop_their_nans_on_purpose() {
 fn real_open3d_and_labelled_pcds_load() {
     let fragment = read_pcd(&real("open3d_rgbd_samples/fragment.pcd"), NonFinite::Drop).unwrap();
     assert_eq!(fragment.len() + fragment.dropped_non_finite, 113_662);
-    let office = read_pcd(
-        &real("bobkov_office_rooms/room1_gt_fine.pcd"),
-        NonFinite::Drop,
-    )
-    .unwrap();
+    let office = read_pcd(&real("bobkov_office_rooms/room1_gt_fine.pcd"), NonFinite::Drop).unwrap();
     assert_eq!(office.len() + office.dropped_non_finite, 237_907);
 }
 
@@ -279,18 +205,10 @@ fn real_cloudcompare_ply_and_kitti_scan_load() {
     let source = read_cloud(&real("small_gicp_lidar_pair/source.ply"), NonFinite::Drop).unwrap();
     assert_eq!(source.len(), 69_792);
     assert_eq!(source.intensity.as_ref().map(Vec::len), Some(69_792));
-    let velodyne = read_cloud(
-        &real("kitti_object_3frames/training/velodyne/000000.bin"),
-        NonFinite::Drop,
-    )
-    .unwrap();
+    let velodyne = read_cloud(&real("kitti_object_3frames/training/velodyne/000000.bin"), NonFinite::Drop).unwrap();
     assert!(velodyne.len() > 100_000);
     // A Velodyne HDL-64 sees tens of metres around the car.
-    let far = velodyne
-        .points
-        .iter()
-        .map(|p| p.coords.norm())
-        .fold(0.0f32, f32::max);
+    let far = velodyne.points.iter().map(|p| p.coords.norm()).fold(0.0f32, f32::max);
     assert!((40.0..130.0).contains(&far), "max range {far}");
 }
 
@@ -320,19 +238,14 @@ fn tum_round_trips_and_reports_bad_lines() {
 
     std::fs::write(&path, "# comment\n1.0 0 0 0 0 0 0 1\n2.0 0 0 0 0 0 0\n").unwrap();
     let m = message(read_tum(&path).unwrap_err());
-    assert!(
-        m.contains("traj.txt:3") && m.contains("expected 8 values"),
-        "{m}"
-    );
+    assert!(m.contains("traj.txt:3") && m.contains("expected 8 values"), "{m}");
     std::fs::write(&path, "1.0 0 0 0 0 0 0 0\n").unwrap();
     assert!(message(read_tum(&path).unwrap_err()).contains("zero length"));
     std::fs::write(&path, "1.0 0 0 nan 0 0 0 1\n").unwrap();
     assert!(message(read_tum(&path).unwrap_err()).contains("non-finite"));
     std::fs::write(&path, "1.0 0 0 0 0 0 0 1\n1.0 1 0 0 0 0 0 1\n").unwrap();
     let dup = read_tum(&path).unwrap();
-    assert!(
-        message(dup.check_increasing(&path).unwrap_err()).contains("duplicate timestamp at pose 1")
-    );
+    assert!(message(dup.check_increasing(&path).unwrap_err()).contains("duplicate timestamp at pose 1"));
 }
 
 #[test]
@@ -343,19 +256,13 @@ fn real_tum_kitti_and_euroc_files_are_detected_and_read() {
     gt.check_increasing(Path::new("gt")).unwrap();
     let (est, _) = read_trajectory(&real("evo_trajectories/freiburg1_xyz-rgbdslam.txt")).unwrap();
     assert!((est.stamps[0] - 1_305_031_102.160_407).abs() < 1e-6);
-    assert!(
-        (est.poses[0].translation.vector - Vector3::new(1.344379, 0.627206, 1.661754)).norm()
-            < 1e-9
-    );
+    assert!((est.poses[0].translation.vector - Vector3::new(1.344379, 0.627206, 1.661754)).norm() < 1e-9);
 
     let (kitti, f) = read_trajectory(&real("evo_trajectories/KITTI_00_gt.txt")).unwrap();
     assert_eq!(f, TrajectoryFormat::Kitti);
     assert_eq!(kitti.len(), 4541);
     assert!(
-        (kitti.poses[1].translation.vector
-            - Vector3::new(-4.690294e-02, -2.839928e-02, 8.586941e-01))
-        .norm()
-            < 1e-9
+        (kitti.poses[1].translation.vector - Vector3::new(-4.690294e-02, -2.839928e-02, 8.586941e-01)).norm() < 1e-9
     );
     let timed = datasets::formats::trajectory::read_kitti(
         &real("evo_trajectories/KITTI_00_gt.txt"),
@@ -391,36 +298,21 @@ fn odometry_and_imu_csv_round_trip_and_report_problems() {
     assert!((back[7].x - odo[7].x).abs() < 1e-9 && (back[7].yaw - odo[7].yaw).abs() < 1e-9);
 
     let imu: Vec<ImuSample> = (0..5)
-        .map(|k| ImuSample {
-            timestamp: k as f64 * 0.02,
-            accel: [0.1, -0.2, 9.81],
-            gyro: [0.0, 0.001, -0.3],
-        })
+        .map(|k| ImuSample { timestamp: k as f64 * 0.02, accel: [0.1, -0.2, 9.81], gyro: [0.0, 0.001, -0.3] })
         .collect();
     let ipath = dir.path().join("imu.csv");
     write_imu(&ipath, &imu).unwrap();
     assert_eq!(read_imu(&ipath).unwrap(), imu);
 
     // Columns are found by name: another order and an extra column load.
-    std::fs::write(
-        &path,
-        "v,timestamp,x,y,yaw,omega,extra\n0.05,0.0,1,2,3,4,99\n",
-    )
-    .unwrap();
+    std::fs::write(&path, "v,timestamp,x,y,yaw,omega,extra\n0.05,0.0,1,2,3,4,99\n").unwrap();
     let o = read_odometry(&path).unwrap();
     assert_eq!((o[0].v, o[0].x, o[0].omega), (0.05, 1.0, 4.0));
     std::fs::write(&path, "timestamp,x,y,yaw,v\n0,0,0,0,0\n").unwrap();
     assert!(message(read_odometry(&path).unwrap_err()).contains("no `omega` column"));
-    std::fs::write(
-        &path,
-        "timestamp,x,y,yaw,v,omega\n1,0,0,0,0,0\n0.5,0,0,0,0,0\n",
-    )
-    .unwrap();
+    std::fs::write(&path, "timestamp,x,y,yaw,v,omega\n1,0,0,0,0,0\n0.5,0,0,0,0,0\n").unwrap();
     let m = message(read_odometry(&path).unwrap_err());
-    assert!(
-        m.contains("odom.csv:3") && m.contains("does not increase"),
-        "{m}"
-    );
+    assert!(m.contains("odom.csv:3") && m.contains("does not increase"), "{m}");
     std::fs::write(&path, "timestamp,x,y,yaw,v,omega\n1,0,NaN,0,0,0\n").unwrap();
     assert!(message(read_odometry(&path).unwrap_err()).contains("column `y`"));
 }
@@ -435,25 +327,13 @@ fn calibration_round_trips_and_rejects_bad_matrices() {
             Translation3::new(0.0, 0.3, -0.1),
             UnitQuaternion::from_euler_angles(-1.5, 0.0, -1.5),
         ),
-        robot_from_lidar: Pose3::from_parts(
-            Translation3::new(0.0, 0.0, 0.75),
-            UnitQuaternion::identity(),
-        ),
+        robot_from_lidar: Pose3::from_parts(Translation3::new(0.0, 0.0, 0.75), UnitQuaternion::identity()),
     };
     write_calibration(&path, &calib).unwrap();
     let back = read_calibration(&path).unwrap();
     assert_eq!(back.camera, calib.camera);
-    assert!(
-        (back.camera_from_lidar.translation.vector - calib.camera_from_lidar.translation.vector)
-            .norm()
-            < 1e-12
-    );
-    assert!(
-        back.camera_from_lidar
-            .rotation
-            .angle_to(&calib.camera_from_lidar.rotation)
-            < 1e-9
-    );
+    assert!((back.camera_from_lidar.translation.vector - calib.camera_from_lidar.translation.vector).norm() < 1e-12);
+    assert!(back.camera_from_lidar.rotation.angle_to(&calib.camera_from_lidar.rotation) < 1e-9);
 
     let text = std::fs::read_to_string(&path).unwrap();
     std::fs::write(&path, text.replacen("525.0", "-1.0", 1)).unwrap();
@@ -461,10 +341,7 @@ fn calibration_round_trips_and_rejects_bad_matrices() {
     let bad = r#"{"camera": {"width": 640, "height": 480, "fx": 525, "fy": 525, "cx": 319.5, "cy": 239.5},
         "camera_from_lidar": [[2,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}"#;
     std::fs::write(&path, bad).unwrap();
-    assert!(
-        message(read_calibration(&path).unwrap_err())
-            .contains("camera_from_lidar is not a rigid transform")
-    );
+    assert!(message(read_calibration(&path).unwrap_err()).contains("camera_from_lidar is not a rigid transform"));
     std::fs::write(&path, "{\"camera\": {\"width\": 640,\n \"heigth\": 480}}").unwrap();
     let m = message(read_calibration(&path).unwrap_err());
     assert!(m.contains("calib.json") && m.contains("line 2"), "{m}");
@@ -476,12 +353,7 @@ fn coco_round_trips_and_checks_references() {
     let path = dir.path().join("train.json");
     let data = CocoDataset {
         info: None,
-        images: vec![CocoImage {
-            id: 1,
-            file_name: "images/000001.png".into(),
-            width: 640,
-            height: 480,
-        }],
+        images: vec![CocoImage { id: 1, file_name: "images/000001.png".into(), width: 640, height: 480 }],
         annotations: vec![CocoAnnotation {
             id: 7,
             image_id: 1,
@@ -492,11 +364,7 @@ fn coco_round_trips_and_checks_references() {
             corner_type: Some("floor".into()),
             point: Some([120.0, 140.0]),
         }],
-        categories: vec![CocoCategory {
-            id: 1,
-            name: "corner".into(),
-            supercategory: None,
-        }],
+        categories: vec![CocoCategory { id: 1, name: "corner".into(), supercategory: None }],
     };
     write_coco(&path, &data).unwrap();
     assert_eq!(read_coco(&path).unwrap(), data);
@@ -506,10 +374,7 @@ fn coco_round_trips_and_checks_references() {
         "annotations": [{"id": 1, "image_id": 3, "category_id": 2, "bbox": [1, 2, 3, 4], "area": 12, "iscrowd": 0, "segmentation": []}],
         "categories": [{"id": 2, "name": "corner", "supercategory": "corner"}]}"#).unwrap();
     let other = read_coco(&path).unwrap();
-    assert_eq!(
-        other.annotations[0].bbox(),
-        datasets::bbox::BBox::new(1.0, 2.0, 4.0, 6.0)
-    );
+    assert_eq!(other.annotations[0].bbox(), datasets::bbox::BBox::new(1.0, 2.0, 4.0, 6.0));
 
     let mut broken = data.clone();
     broken.annotations[0].image_id = 99;

@@ -11,9 +11,7 @@ use datasets::generate::{DatagenConfig, generate};
 use datasets::math::{Point3, Pose3, Vec3};
 use datasets::world::World;
 use datasets::world::labels::{LabelConfig, visible_corners};
-use datasets::world::motion::{
-    GRAVITY_MPS2, MotionConfig, heading, simulate_imu, simulate_odometry,
-};
+use datasets::world::motion::{GRAVITY_MPS2, MotionConfig, heading, simulate_imu, simulate_odometry};
 use datasets::world::rig::Rig;
 use datasets::world::route::{Route, pose_on_floor};
 
@@ -66,41 +64,24 @@ fn labels_project_onto_their_corners_and_see_them() {
                 .corners
                 .iter()
                 .filter_map(|c| {
-                    let uv = calib
-                        .camera
-                        .project(&(camera_from_world * Point3::from(c.position)))?;
-                    Some((
-                        c,
-                        ((uv[0] - point[0] as f64).powi(2) + (uv[1] - point[1] as f64).powi(2))
-                            .sqrt(),
-                    ))
+                    let uv = calib.camera.project(&(camera_from_world * Point3::from(c.position)))?;
+                    Some((c, ((uv[0] - point[0] as f64).powi(2) + (uv[1] - point[1] as f64).powi(2)).sqrt()))
                 })
                 .min_by(|a, b| a.1.total_cmp(&b.1))
                 .unwrap();
-            assert!(
-                distance_px < 1.0,
-                "label {} is {distance_px} px from the nearest corner",
-                a.id
-            );
+            assert!(distance_px < 1.0, "label {} is {distance_px} px from the nearest corner", a.id);
             assert_eq!(a.corner_type.as_deref(), Some(best.kind.name()));
             // The box is centred on the point unless the image edge clipped it.
             let c = a.bbox();
             if c.width() == 48.0 && c.height() == 48.0 {
-                assert!(
-                    (c.centre()[0] - point[0]).abs() < 1e-3
-                        && (c.centre()[1] - point[1]).abs() < 1e-3
-                );
+                assert!((c.centre()[0] - point[0]).abs() < 1e-3 && (c.centre()[1] - point[1]).abs() < 1e-3);
             }
             // Nothing hides the corner: along the ray through the labeled
             // point, the first surface is not clearly nearer than the corner.
             let corner = Point3::from(best.position);
-            let ray = (world_from_camera.rotation
-                * calib.camera.ray(point[0] as f64, point[1] as f64))
-            .normalize();
+            let ray = (world_from_camera.rotation * calib.camera.ray(point[0] as f64, point[1] as f64)).normalize();
             let distance = (corner - eye).norm();
-            let first = world
-                .cast(&eye, &ray, 1e-4, 1e3)
-                .map_or(f64::INFINITY, |h| h.t);
+            let first = world.cast(&eye, &ray, 1e-4, 1e3).map_or(f64::INFINITY, |h| h.t);
             assert!(
                 first > distance - (0.01 * distance).max(0.02) - 0.01,
                 "label {}: a surface at {first} m hides the corner at {distance} m",
@@ -119,30 +100,16 @@ fn occluded_corners_are_not_labeled() {
     // The robot at the start of the route, facing the first box (x 2.5..3.1, y 1.3..1.9, 0.7 m high).
     let robot = pose_on_floor(&world.layout, [0.5, 1.6], 0.0).unwrap();
     let world_from_camera = robot * rig.robot_from_camera;
-    let labels = visible_corners(
-        &world,
-        &rig.camera,
-        &world_from_camera,
-        &LabelConfig::default(),
-    );
+    let labels = visible_corners(&world, &rig.camera, &world_from_camera, &LabelConfig::default());
     let labeled = |p: [f64; 3]| {
         labels.iter().any(|l| {
             let c = world.layout.corners[l.corner].position;
             (0..3).all(|k| (c[k] - p[k]).abs() < 1e-9)
         })
     };
-    assert!(
-        labeled([2.5, 1.3, 0.0]) && labeled([2.5, 1.9, 0.0]),
-        "the near bottom corners are visible"
-    );
-    assert!(
-        labeled([2.5, 1.3, 0.7]) && labeled([2.5, 1.9, 0.7]),
-        "the near top corners are visible"
-    );
-    assert!(
-        !labeled([3.1, 1.3, 0.0]) && !labeled([3.1, 1.9, 0.0]),
-        "the far bottom corners are behind the box"
-    );
+    assert!(labeled([2.5, 1.3, 0.0]) && labeled([2.5, 1.9, 0.0]), "the near bottom corners are visible");
+    assert!(labeled([2.5, 1.3, 0.7]) && labeled([2.5, 1.9, 0.7]), "the near top corners are visible");
+    assert!(!labeled([3.1, 1.3, 0.0]) && !labeled([3.1, 1.9, 0.0]), "the far bottom corners are behind the box");
 }
 
 #[test]
@@ -158,11 +125,8 @@ fn every_corner_is_where_three_surfaces_meet() {
             .map(|s| &s.normal)
             .collect();
         // Three distinct planes: their normals span 3D.
-        let spans = touching.iter().any(|a| {
-            touching
-                .iter()
-                .any(|b| touching.iter().any(|c| a.cross(b).dot(c).abs() > 0.1))
-        });
+        let spans =
+            touching.iter().any(|a| touching.iter().any(|b| touching.iter().any(|c| a.cross(b).dot(c).abs() > 0.1)));
         assert!(
             spans,
             "{:?} corner at {:?} touches {} surfaces without three independent planes",
@@ -184,11 +148,7 @@ fn lidar_points_lie_on_the_surfaces_within_the_noise() {
     let mut distances = Vec::new();
     for k in (0..truth.len()).step_by(7) {
         let name = datasets::generate::stamp_name(truth.stamps[k]);
-        let cloud = formats::read_cloud(
-            &seq.join("cloud").join(format!("{name}.pcd")),
-            NonFinite::Reject,
-        )
-        .unwrap();
+        let cloud = formats::read_cloud(&seq.join("cloud").join(format!("{name}.pcd")), NonFinite::Reject).unwrap();
         assert!(cloud.len() > 8 * 1000, "frame {k}: {} points", cloud.len());
         let world_from_lidar = truth.poses[k] * calib.robot_from_lidar;
         for p in cloud.points.iter().step_by(5) {
@@ -206,15 +166,8 @@ fn lidar_points_lie_on_the_surfaces_within_the_noise() {
     let n = distances.len() as f64;
     let rms = (distances.iter().map(|d| d * d).sum::<f64>() / n).sqrt();
     let within = distances.iter().filter(|&&d| d < 4.0 * sigma).count() as f64 / n;
-    assert!(
-        rms < 1.2 * sigma,
-        "RMS distance {rms} m for range noise {sigma} m"
-    );
-    assert!(
-        within > 0.995,
-        "only {:.2}% of points within 4 sigma",
-        within * 100.0
-    );
+    assert!(rms < 1.2 * sigma, "RMS distance {rms} m for range noise {sigma} m");
+    assert!(within > 0.995, "only {:.2}% of points within 4 sigma", within * 100.0);
 }
 
 #[test]
@@ -229,27 +182,16 @@ fn ramps_climb_at_the_configured_slope() {
             let v = p.translation.vector;
             let h = heading(p);
             // All four wheels on the ramp.
-            [(0.2, 0.0), (-0.2, 0.0), (0.0, 0.2), (0.0, -0.2)]
-                .iter()
-                .all(|(f, l)| {
-                    let (x, y) = (
-                        v.x + h.cos() * f - h.sin() * l,
-                        v.y + h.sin() * f + h.cos() * l,
-                    );
-                    world
-                        .layout
-                        .region_at(x, y)
-                        .is_some_and(|r| r.level.is_none())
-                })
+            [(0.2, 0.0), (-0.2, 0.0), (0.0, 0.2), (0.0, -0.2)].iter().all(|(f, l)| {
+                let (x, y) = (v.x + h.cos() * f - h.sin() * l, v.y + h.sin() * f + h.cos() * l);
+                world.layout.region_at(x, y).is_some_and(|r| r.level.is_none())
+            })
         })
         .collect();
     let mut slopes = Vec::new();
     for k in 1..truth.len() {
         if on_ramp[k] && on_ramp[k - 1] {
-            let (a, b) = (
-                truth.poses[k - 1].translation.vector,
-                truth.poses[k].translation.vector,
-            );
+            let (a, b) = (truth.poses[k - 1].translation.vector, truth.poses[k].translation.vector);
             slopes.push(((b.z - a.z) / (b.xy() - a.xy()).norm()).atan().to_degrees());
         }
         if on_ramp[k] {
@@ -259,10 +201,7 @@ fn ramps_climb_at_the_configured_slope() {
     }
     assert!(slopes.len() >= 4, "{} ramp samples", slopes.len());
     for s in slopes {
-        assert!(
-            (s - config.world.ramp_slope_deg).abs() < 0.01,
-            "slope {s} deg"
-        );
+        assert!((s - config.world.ramp_slope_deg).abs() < 0.01, "slope {s} deg");
     }
 }
 
@@ -274,9 +213,7 @@ fn the_route_visits_three_levels_at_their_heights() {
     let mut plateaus: Vec<f64> = Vec::new();
     for w in truth.poses.windows(3) {
         let z: Vec<f64> = w.iter().map(|p| p.translation.vector.z).collect();
-        if (z[0] - z[1]).abs() < 1e-9
-            && (z[1] - z[2]).abs() < 1e-9
-            && !plateaus.iter().any(|p| (p - z[0]).abs() < 1e-6)
+        if (z[0] - z[1]).abs() < 1e-9 && (z[1] - z[2]).abs() < 1e-9 && !plateaus.iter().any(|p| (p - z[0]).abs() < 1e-6)
         {
             plateaus.push(z[0]);
         }
@@ -292,11 +229,7 @@ fn files_under(dir: &Path) -> Vec<PathBuf> {
     let mut out = Vec::new();
     for entry in std::fs::read_dir(dir).unwrap() {
         let path = entry.unwrap().path();
-        if path.is_dir() {
-            out.extend(files_under(&path))
-        } else {
-            out.push(path)
-        }
+        if path.is_dir() { out.extend(files_under(&path)) } else { out.push(path) }
     }
     out.sort();
     out
@@ -308,37 +241,21 @@ fn same_seed_same_bytes_other_seed_other_images() {
     config.detection.images = 3;
     config.detection.train = 2;
     config.sequence.frames = Some(3);
-    let (a, b, c) = (
-        tempfile::tempdir().unwrap(),
-        tempfile::tempdir().unwrap(),
-        tempfile::tempdir().unwrap(),
-    );
+    let (a, b, c) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
     generate(a.path(), &config).unwrap();
     generate(b.path(), &config).unwrap();
     let files = files_under(a.path());
     assert!(files.len() > 15);
     for f in &files {
         let rel = f.strip_prefix(a.path()).unwrap();
-        assert_eq!(
-            std::fs::read(f).unwrap(),
-            std::fs::read(b.path().join(rel)).unwrap(),
-            "{} differs",
-            rel.display()
-        );
+        assert_eq!(std::fs::read(f).unwrap(), std::fs::read(b.path().join(rel)).unwrap(), "{} differs", rel.display());
     }
     config.seed += 1;
     generate(c.path(), &config).unwrap();
     let image = "detection/images/000000.png";
-    assert_ne!(
-        std::fs::read(a.path().join(image)).unwrap(),
-        std::fs::read(c.path().join(image)).unwrap()
-    );
+    assert_ne!(std::fs::read(a.path().join(image)).unwrap(), std::fs::read(c.path().join(image)).unwrap());
     // No temporary files are left behind.
-    assert!(
-        files
-            .iter()
-            .all(|f| !f.file_name().unwrap().to_string_lossy().starts_with(".tmp"))
-    );
+    assert!(files.iter().all(|f| !f.file_name().unwrap().to_string_lossy().starts_with(".tmp")));
 }
 
 #[test]
@@ -349,25 +266,16 @@ fn detection_set_has_the_requested_splits_and_canny_inputs() {
     let test = formats::read_coco(&det.join("test.json")).unwrap();
     assert_eq!(
         (train.images.len(), test.images.len()),
-        (
-            config.detection.train,
-            config.detection.images - config.detection.train
-        )
+        (config.detection.train, config.detection.images - config.detection.train)
     );
     for im in train.images.iter().chain(&test.images) {
         let rgb = datasets::atomic::read_image(&det.join(&im.file_name)).unwrap();
         assert_eq!((rgb.width(), rgb.height()), (640, 480));
         let canny =
-            datasets::atomic::read_image(&det.join(im.file_name.replace("images/", "canny/")))
-                .unwrap()
-                .to_luma8();
+            datasets::atomic::read_image(&det.join(im.file_name.replace("images/", "canny/"))).unwrap().to_luma8();
         assert_eq!(canny.dimensions(), (224, 224));
         let edges = canny.pixels().filter(|p| p[0] > 0).count();
-        assert!(
-            edges > 200 && edges < 224 * 224 / 3,
-            "{edges} edge pixels in {}",
-            im.file_name
-        );
+        assert!(edges > 200 && edges < 224 * 224 / 3, "{edges} edge pixels in {}", im.file_name);
     }
 }
 
@@ -412,18 +320,10 @@ fn noiseless_odometry_follows_the_route_and_the_imu_feels_the_ramp() {
         let x = pose_at(s.timestamp).translation.vector.x;
         // (The first samples see the start from standstill.)
         if x < 7.0 && s.timestamp > 0.05 {
-            assert!(
-                (s.accel[2] - GRAVITY_MPS2).abs() < 1e-6
-                    && s.accel[0].abs() < 1e-6
-                    && s.gyro[1].abs() < 1e-9
-            );
+            assert!((s.accel[2] - GRAVITY_MPS2).abs() < 1e-6 && s.accel[0].abs() < 1e-6 && s.gyro[1].abs() < 1e-9);
         }
         if x > ramp_x.0 + 0.1 && x < ramp_x.1 - 0.1 {
-            assert!(
-                (s.accel[0] - GRAVITY_MPS2 * slope.sin()).abs() < 1e-6,
-                "ax {} on the ramp",
-                s.accel[0]
-            );
+            assert!((s.accel[0] - GRAVITY_MPS2 * slope.sin()).abs() < 1e-6, "ax {} on the ramp", s.accel[0]);
         }
     }
     // With the default noise, odometry drifts but stays plausible.
@@ -431,9 +331,5 @@ fn noiseless_odometry_follows_the_route_and_the_imu_feels_the_ramp() {
     let end = noisy.last().unwrap();
     let truth = pose_at(end.timestamp).translation.vector;
     let drift = ((end.x - truth.x).powi(2) + (end.y - truth.y).powi(2)).sqrt();
-    assert!(
-        drift > 1e-3 && drift < 2.0,
-        "drift {drift} m after {} m",
-        speed * 56.0
-    );
+    assert!(drift > 1e-3 && drift < 2.0, "drift {drift} m after {} m", speed * 56.0);
 }

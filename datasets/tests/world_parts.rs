@@ -21,19 +21,13 @@ fn a_rounded_right_angle_has_the_expected_length_and_headings() {
     assert!(((p[0] - 4.0).hypot(p[1] - 1.0) - r).abs() < 1e-12);
     let (p, h) = route.at(route.length());
     assert!(
-        (p[0] - 5.0).abs() < 1e-12
-            && (p[1] - 4.0).abs() < 1e-12
-            && (h - std::f64::consts::FRAC_PI_2).abs() < 1e-12
+        (p[0] - 5.0).abs() < 1e-12 && (p[1] - 4.0).abs() < 1e-12 && (h - std::f64::consts::FRAC_PI_2).abs() < 1e-12
     );
 }
 
 #[test]
 fn a_quad_is_hit_inside_and_missed_outside() {
-    let material = Material {
-        base: [0.5; 3],
-        pattern: Pattern::Cardboard,
-        seed: 0,
-    };
+    let material = Material { base: [0.5; 3], pattern: Pattern::Cardboard, seed: 0 };
     let quad = vec![
         Point3::new(0.0, 0.0, 0.0),
         Point3::new(2.0, 0.0, 0.0),
@@ -43,22 +37,10 @@ fn a_quad_is_hit_inside_and_missed_outside() {
     let s = Surface::new(SurfaceKind::Floor, quad, -Vec3::z(), Vec3::x(), material);
     assert_eq!(s.normal, -Vec3::z());
     let down = Vec3::new(0.0, 0.0, -1.0);
-    assert_eq!(
-        s.intersect(&Point3::new(1.5, 0.5, 2.0), &down, 0.0, 10.0),
-        Some(2.0)
-    );
-    assert_eq!(
-        s.intersect(&Point3::new(2.5, 0.5, 2.0), &down, 0.0, 10.0),
-        None
-    );
-    assert_eq!(
-        s.intersect(&Point3::new(1.5, 0.5, 2.0), &down, 0.0, 1.5),
-        None
-    );
-    assert_eq!(
-        s.intersect(&Point3::new(1.5, 0.5, 2.0), &Vec3::x(), 0.0, 10.0),
-        None
-    );
+    assert_eq!(s.intersect(&Point3::new(1.5, 0.5, 2.0), &down, 0.0, 10.0), Some(2.0));
+    assert_eq!(s.intersect(&Point3::new(2.5, 0.5, 2.0), &down, 0.0, 10.0), None);
+    assert_eq!(s.intersect(&Point3::new(1.5, 0.5, 2.0), &down, 0.0, 1.5), None);
+    assert_eq!(s.intersect(&Point3::new(1.5, 0.5, 2.0), &Vec3::x(), 0.0, 10.0), None);
 }
 
 #[test]
@@ -70,10 +52,7 @@ fn the_bvh_finds_the_same_nearest_surface_as_brute_force() {
         let origin = Point3::new(-1.0 + 20.0 * u(0), -2.0 + 14.0 * u(1), 0.1 + 3.0 * u(2));
         let dir = Vec3::new(u(3) - 0.5, u(4) - 0.5, u(5) - 0.5).normalize();
         let fast = world.cast(&origin, &dir, 1e-6, 100.0).map(|h| h.t);
-        let slow = surfaces
-            .iter()
-            .filter_map(|s| s.intersect(&origin, &dir, 1e-6, 100.0))
-            .min_by(f64::total_cmp);
+        let slow = surfaces.iter().filter_map(|s| s.intersect(&origin, &dir, 1e-6, 100.0)).min_by(f64::total_cmp);
         assert_eq!(fast, slow, "ray {k} from {origin} along {dir}");
     }
 }

@@ -19,10 +19,7 @@ pub struct AnchorConfig {
 impl Default for AnchorConfig {
     fn default() -> Self {
         // Corner boxes are 48 px in a 640x480 image: 17 x 22 px in the 224 x 224 input.
-        Self {
-            sizes: vec![16.0, 24.0, 40.0],
-            aspect_ratios: vec![0.75, 1.0, 1.5],
-        }
+        Self { sizes: vec![16.0, 24.0, 40.0], aspect_ratios: vec![0.75, 1.0, 1.5] }
     }
 }
 
@@ -57,10 +54,7 @@ impl AnchorConfig {
         for y in 0..grid_h {
             for x in 0..grid_w {
                 let (sx, sy) = (x as f32 * stride, y as f32 * stride);
-                out.extend(
-                    cell.iter()
-                        .map(|a| BBox::new(a.x1 + sx, a.y1 + sy, a.x2 + sx, a.y2 + sy)),
-                );
+                out.extend(cell.iter().map(|a| BBox::new(a.x1 + sx, a.y1 + sy, a.x2 + sx, a.y2 + sy)));
             }
         }
         out

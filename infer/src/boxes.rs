@@ -7,9 +7,7 @@ pub use datasets::bbox::BBox;
 
 /// Intersection over union of every pair: `iou[i][j]` for `a[i]`, `b[j]`.
 pub fn box_iou(a: &[BBox], b: &[BBox]) -> Vec<Vec<f32>> {
-    a.iter()
-        .map(|p| b.iter().map(|q| iou(p, q)).collect())
-        .collect()
+    a.iter().map(|p| b.iter().map(|q| iou(p, q)).collect()).collect()
 }
 
 pub fn iou(p: &BBox, q: &BBox) -> f32 {
@@ -43,12 +41,7 @@ pub fn nms(boxes: &[BBox], scores: &[f32], iou_threshold: f32) -> Vec<usize> {
 
 /// NMS within each class only (torchvision's `batched_nms`): indices of the
 /// kept boxes by decreasing score.
-pub fn batched_nms(
-    boxes: &[BBox],
-    scores: &[f32],
-    classes: &[usize],
-    iou_threshold: f32,
-) -> Vec<usize> {
+pub fn batched_nms(boxes: &[BBox], scores: &[f32], classes: &[usize], iou_threshold: f32) -> Vec<usize> {
     let mut keep = Vec::new();
     let mut labels: Vec<usize> = classes.to_vec();
     labels.sort_unstable();
@@ -69,9 +62,7 @@ pub fn clip_to_image(b: &BBox, width: f32, height: f32) -> BBox {
 
 /// Indices of the boxes at least `min_size` wide and high.
 pub fn remove_small(boxes: &[BBox], min_size: f32) -> Vec<usize> {
-    (0..boxes.len())
-        .filter(|&i| boxes[i].width() >= min_size && boxes[i].height() >= min_size)
-        .collect()
+    (0..boxes.len()).filter(|&i| boxes[i].width() >= min_size && boxes[i].height() >= min_size).collect()
 }
 
 /// Box regression coding relative to reference boxes (anchors or proposals),
@@ -85,10 +76,7 @@ pub struct BoxCoder {
 
 impl BoxCoder {
     pub fn new(weights: [f32; 4]) -> Self {
-        Self {
-            weights,
-            clip: (1000.0f32 / 16.0).ln(),
-        }
+        Self { weights, clip: (1000.0f32 / 16.0).ln() }
     }
 
     /// The deltas `(dx, dy, dw, dh)` that turn `reference` into `target`.
@@ -98,12 +86,7 @@ impl BoxCoder {
         let (rx, ry) = (reference.x1 + 0.5 * rw, reference.y1 + 0.5 * rh);
         let (tw, th) = (target.width(), target.height());
         let (tx, ty) = (target.x1 + 0.5 * tw, target.y1 + 0.5 * th);
-        [
-            wx * (tx - rx) / rw,
-            wy * (ty - ry) / rh,
-            ww * (tw / rw).ln(),
-            wh * (th / rh).ln(),
-        ]
+        [wx * (tx - rx) / rw, wy * (ty - ry) / rh, ww * (tw / rw).ln(), wh * (th / rh).ln()]
     }
 
     /// Applies `deltas` to `reference`.
@@ -112,10 +95,7 @@ impl BoxCoder {
         let (rw, rh) = (reference.width(), reference.height());
         let (rx, ry) = (reference.x1 + 0.5 * rw, reference.y1 + 0.5 * rh);
         let (dx, dy) = (deltas[0] / wx, deltas[1] / wy);
-        let (dw, dh) = (
-            (deltas[2] / ww).min(self.clip),
-            (deltas[3] / wh).min(self.clip),
-        );
+        let (dw, dh) = ((deltas[2] / ww).min(self.clip), (deltas[3] / wh).min(self.clip));
         let (cx, cy) = (dx * rw + rx, dy * rh + ry);
         let (w, h) = (dw.exp() * rw, dh.exp() * rh);
         BBox::new(cx - 0.5 * w, cy - 0.5 * h, cx + 0.5 * w, cy + 0.5 * h)

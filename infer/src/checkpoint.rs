@@ -41,11 +41,7 @@ pub enum CheckpointError {
     #[error("{path}: {message}")]
     Invalid { path: PathBuf, message: String },
     #[error("{path}: the weights do not fit the network of {config} ({message})")]
-    Weights {
-        path: PathBuf,
-        config: PathBuf,
-        message: String,
-    },
+    Weights { path: PathBuf, config: PathBuf, message: String },
 }
 
 /// Writes a checkpoint folder atomically: into a temporary sibling folder,
@@ -56,10 +52,7 @@ pub fn save(
     network: &Network,
     meta: &CheckpointMeta,
 ) -> Result<(), CheckpointError> {
-    let parent = dir
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
+    let parent = dir.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     std::fs::create_dir_all(parent).map_err(|e| datasets::DataError::io(parent, e))?;
     let tmp = tempfile::Builder::new()
         .prefix(".tmp-checkpoint-")
@@ -72,18 +65,10 @@ pub fn save(
         Network::FasterRcnn(m) => m.clone().save_file(&weights),
         Network::Grid(m) => m.clone().save_file(&weights),
     };
-    result.map_err(|e| CheckpointError::Invalid {
-        path: weights.with_extension("bpk"),
-        message: e.to_string(),
-    })?;
+    result.map_err(|e| CheckpointError::Invalid { path: weights.with_extension("bpk"), message: e.to_string() })?;
     let kept = tmp.keep();
     if dir.exists() {
-        let old = parent.join(format!(
-            ".old-{}",
-            dir.file_name()
-                .and_then(|n| n.to_str())
-                .unwrap_or("checkpoint")
-        ));
+        let old = parent.join(format!(".old-{}", dir.file_name().and_then(|n| n.to_str()).unwrap_or("checkpoint")));
         let _ = std::fs::remove_dir_all(&old);
         std::fs::rename(dir, &old).map_err(|e| datasets::DataError::io(dir, e))?;
         std::fs::rename(&kept, dir).map_err(|e| datasets::DataError::io(dir, e))?;
@@ -97,14 +82,8 @@ pub fn save(
 pub fn read_config(dir: &Path) -> Result<DetectorConfig, CheckpointError> {
     let path = dir.join(CONFIG_FILE);
     let text = datasets::atomic::read_text(&path)?;
-    let config: DetectorConfig =
-        serde_json::from_str(&text).map_err(|e| datasets::DataError::json(&path, e))?;
-    config
-        .validate()
-        .map_err(|message| CheckpointError::Invalid {
-            path: path.clone(),
-            message,
-        })?;
+    let config: DetectorConfig = serde_json::from_str(&text).map_err(|e| datasets::DataError::json(&path, e))?;
+    config.validate().map_err(|message| CheckpointError::Invalid { path: path.clone(), message })?;
     Ok(config)
 }
 
@@ -115,15 +94,9 @@ pub fn read_meta(dir: &Path) -> Result<CheckpointMeta, CheckpointError> {
 }
 
 /// Loads a checkpoint folder onto `device`.
-pub fn load(
-    dir: &Path,
-    device: &Device,
-) -> Result<(DetectorConfig, Network, CheckpointMeta), CheckpointError> {
+pub fn load(dir: &Path, device: &Device) -> Result<(DetectorConfig, Network, CheckpointMeta), CheckpointError> {
     if !dir.is_dir() {
-        return Err(CheckpointError::Invalid {
-            path: dir.to_path_buf(),
-            message: "no such checkpoint folder".into(),
-        });
+        return Err(CheckpointError::Invalid { path: dir.to_path_buf(), message: "no such checkpoint folder".into() });
     }
     let config = read_config(dir)?;
     let meta = read_meta(dir)?;
@@ -132,17 +105,10 @@ pub fn load(
 }
 
 /// Builds the network of `config` and loads `dir/model.bpk` into it.
-pub fn load_weights(
-    dir: &Path,
-    config: &DetectorConfig,
-    device: &Device,
-) -> Result<Network, CheckpointError> {
+pub fn load_weights(dir: &Path, config: &DetectorConfig, device: &Device) -> Result<Network, CheckpointError> {
     let path = dir.join(WEIGHTS_FILE);
     if !path.is_file() {
-        return Err(CheckpointError::Invalid {
-            path,
-            message: "weights file is missing".into(),
-        });
+        return Err(CheckpointError::Invalid { path, message: "weights file is missing".into() });
     }
     let weights_error = |e: burn::store::RecordError| CheckpointError::Weights {
         path: path.clone(),
@@ -150,9 +116,7 @@ pub fn load_weights(
         message: e.to_string(),
     };
     Ok(match Network::new(config, device) {
-        Network::FasterRcnn(m) => {
-            Network::FasterRcnn(m.try_load_file(&path).map_err(weights_error)?)
-        }
+        Network::FasterRcnn(m) => Network::FasterRcnn(m.try_load_file(&path).map_err(weights_error)?),
         Network::Grid(m) => Network::Grid(m.try_load_file(&path).map_err(weights_error)?),
     })
 }

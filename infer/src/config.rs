@@ -136,11 +136,7 @@ pub struct DetectionConfig {
 
 impl Default for DetectionConfig {
     fn default() -> Self {
-        Self {
-            score_threshold: 0.05,
-            nms_iou: 0.3,
-            max_detections: 100,
-        }
+        Self { score_threshold: 0.05, nms_iou: 0.3, max_detections: 100 }
     }
 }
 
@@ -179,16 +175,11 @@ impl DetectorConfig {
         }
         self.preprocess.validate()?;
         let size = self.input_size();
-        if size % 32 != 0 || size < 64 {
-            return Err(format!(
-                "input size {size} must be a multiple of 32 and at least 64"
-            ));
+        if !size.is_multiple_of(32) || size < 64 {
+            return Err(format!("input size {size} must be a multiple of 32 and at least 64"));
         }
-        if self.grid_cells == 0 || size % self.grid_cells != 0 {
-            return Err(format!(
-                "grid of {} cells does not divide the input size {size}",
-                self.grid_cells
-            ));
+        if self.grid_cells == 0 || !size.is_multiple_of(self.grid_cells) {
+            return Err(format!("grid of {} cells does not divide the input size {size}", self.grid_cells));
         }
         if self.anchors.sizes.is_empty() || self.anchors.aspect_ratios.is_empty() {
             return Err("anchors need at least one size and one aspect ratio".into());

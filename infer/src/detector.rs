@@ -23,33 +23,16 @@ impl Detector {
     pub fn load(dir: &Path, device: Device) -> Result<Self, CheckpointError> {
         let device = device.without_autodiff();
         let (config, network, meta) = checkpoint::load(dir, &device)?;
-        Ok(Self {
-            config,
-            meta,
-            network: network.valid(),
-            device,
-        })
+        Ok(Self { config, meta, network: network.valid(), device })
     }
 
-    pub fn from_network(
-        config: DetectorConfig,
-        meta: CheckpointMeta,
-        network: &Network,
-        device: Device,
-    ) -> Self {
-        Self {
-            config,
-            meta,
-            network: network.valid(),
-            device,
-        }
+    pub fn from_network(config: DetectorConfig, meta: CheckpointMeta, network: &Network, device: Device) -> Self {
+        Self { config, meta, network: network.valid(), device }
     }
 
     /// Detections on one image, in its own pixel coordinates.
     pub fn detect(&self, image: &DynamicImage) -> Vec<Detection> {
-        self.detect_many(std::slice::from_ref(image))
-            .pop()
-            .unwrap_or_default()
+        self.detect_many(std::slice::from_ref(image)).pop().unwrap_or_default()
     }
 
     /// Detections on several images at once (one batch).
@@ -57,22 +40,14 @@ impl Detector {
         if images.is_empty() {
             return Vec::new();
         }
-        let edges: Vec<GrayImage> = images
-            .iter()
-            .map(|im| preprocess(im, &self.config.preprocess))
-            .collect();
+        let edges: Vec<GrayImage> = images.iter().map(|im| preprocess(im, &self.config.preprocess)).collect();
         let found = self.detect_inputs(&edges);
         found
             .into_iter()
             .zip(images)
             .map(|(dets, im)| {
                 let map = ImageToNet::new(im.width(), im.height(), self.config.preprocess.size);
-                dets.into_iter()
-                    .map(|d| Detection {
-                        bbox: map.to_image(&d.bbox),
-                        ..d
-                    })
-                    .collect()
+                dets.into_iter().map(|d| Detection { bbox: map.to_image(&d.bbox), ..d }).collect()
             })
             .collect()
     }
@@ -91,8 +66,5 @@ pub fn input_tensor(edges: &[GrayImage], device: &Device) -> Tensor<4> {
     for e in edges {
         data.extend(e.as_raw().iter().map(|&v| v as f32 / 255.0));
     }
-    Tensor::<4>::from_data(
-        TensorData::new(data, [edges.len(), 1, h as usize, w as usize]),
-        device,
-    )
+    Tensor::<4>::from_data(TensorData::new(data, [edges.len(), 1, h as usize, w as usize]), device)
 }

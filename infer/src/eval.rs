@@ -16,14 +16,7 @@ pub fn evaluate_set(detector: &Detector, set: &[LabeledImage], batch: usize) -> 
         let edges: Vec<_> = chunk.iter().map(|im| im.edges.clone()).collect();
         for (dets, im) in detector.detect_inputs(&edges).into_iter().zip(chunk) {
             let map = im.to_net(size);
-            predictions.push(
-                dets.into_iter()
-                    .map(|d| Detection {
-                        bbox: map.to_image(&d.bbox),
-                        ..d
-                    })
-                    .collect(),
-            );
+            predictions.push(dets.into_iter().map(|d| Detection { bbox: map.to_image(&d.bbox), ..d }).collect());
         }
     }
     let truth: Vec<_> = set.iter().map(|im| im.truth.clone()).collect();

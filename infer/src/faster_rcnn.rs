@@ -80,12 +80,8 @@ impl FasterRcnn {
             rpn_bbox: conv(c, 4 * a, 1, 0.01),
             fc6: LinearConfig::new(c * p * p, config.hidden).init(device),
             fc7: LinearConfig::new(config.hidden, config.hidden).init(device),
-            cls_score: LinearConfig::new(config.hidden, k)
-                .with_initializer(normal(0.01))
-                .init(device),
-            bbox_pred: LinearConfig::new(config.hidden, 4 * k)
-                .with_initializer(normal(0.001))
-                .init(device),
+            cls_score: LinearConfig::new(config.hidden, k).with_initializer(normal(0.01)).init(device),
+            bbox_pred: LinearConfig::new(config.hidden, 4 * k).with_initializer(normal(0.001)).init(device),
             pool: trunk::max_pool_2x2(),
             act: Relu::new(),
             anchors_per_location: a,
@@ -104,24 +100,11 @@ impl FasterRcnn {
         let a = self.anchors_per_location;
         let t = self.act.forward(self.rpn_conv.forward(features));
         // [B, A, H, W] -> [B, H, W, A] -> [B, H*W*A]
-        let objectness = self
-            .rpn_cls
-            .forward(t.clone())
-            .permute([0, 2, 3, 1])
-            .reshape([b, h * w * a]);
+        let objectness = self.rpn_cls.forward(t.clone()).permute([0, 2, 3, 1]).reshape([b, h * w * a]);
         // [B, A*4, H, W] -> [B, A, 4, H, W] -> [B, H, W, A, 4] -> [B, H*W*A, 4]
-        let deltas = self
-            .rpn_bbox
-            .forward(t)
-            .reshape([b, a, 4, h, w])
-            .permute([0, 3, 4, 1, 2])
-            .reshape([b, h * w * a, 4]);
-        RpnOutput {
-            objectness,
-            deltas,
-            grid_h: h,
-            grid_w: w,
-        }
+        let deltas =
+            self.rpn_bbox.forward(t).reshape([b, a, 4, h, w]).permute([0, 3, 4, 1, 2]).reshape([b, h * w * a, 4]);
+        RpnOutput { objectness, deltas, grid_h: h, grid_w: w }
     }
 
     /// RoIAlign of each image's RoIs (input pixels) from `features`, then the
@@ -133,20 +116,14 @@ impl FasterRcnn {
             if image_rois.is_empty() {
                 continue;
             }
-            let scaled: Vec<BBox> = image_rois
-                .iter()
-                .map(|r| r.scale(1.0 / STRIDE, 1.0 / STRIDE))
-                .collect();
-            let map = features.clone().slice([i..i + 1]);
+            let scaled: Vec<BBox> = image_rois.iter().map(|r| r.scale(1.0 / STRIDE, 1.0 / STRIDE)).collect();
+            let map = features.clone().narrow(0, i, 1);
             pooled.push(roi_align(map, &scaled, self.pool_size, self.sampling_ratio));
         }
         let x: Tensor<2> = Tensor::cat(pooled, 0).flatten(1, 3);
         let x = self.act.forward(self.fc6.forward(x));
         let x = self.act.forward(self.fc7.forward(x));
-        HeadOutput {
-            class_logits: self.cls_score.forward(x.clone()),
-            box_deltas: self.bbox_pred.forward(x),
-        }
+        HeadOutput { class_logits: self.cls_score.forward(x.clone()), box_deltas: self.bbox_pred.forward(x) }
     }
 }
 
@@ -176,12 +153,7 @@ pub fn proposals(
     let boxes: Vec<BBox> = order
         .iter()
         .map(|&i| {
-            let d = [
-                deltas[4 * i],
-                deltas[4 * i + 1],
-                deltas[4 * i + 2],
-                deltas[4 * i + 3],
-            ];
+            let d = [deltas[4 * i], deltas[4 * i + 1], deltas[4 * i + 2], deltas[4 * i + 3]];
             coder.decode(&anchors[i], d).clip(image_size, image_size)
         })
         .collect();
@@ -224,9 +196,8 @@ pub fn postprocess(
                 continue;
             }
             let o = i * 4 * k + 4 * c;
-            let b = coder
-                .decode(p, [deltas[o], deltas[o + 1], deltas[o + 2], deltas[o + 3]])
-                .clip(image_size, image_size);
+            let b =
+                coder.decode(p, [deltas[o], deltas[o + 1], deltas[o + 2], deltas[o + 3]]).clip(image_size, image_size);
             if b.width() < 1e-2 || b.height() < 1e-2 {
                 continue;
             }
@@ -237,7 +208,5 @@ pub fn postprocess(
     }
     let mut keep = batched_nms(&boxes, &best, &classes, nms_iou);
     keep.truncate(max_detections);
-    keep.into_iter()
-        .map(|i| (boxes[i], best[i], classes[i]))
-        .collect()
+    keep.into_iter().map(|i| (boxes[i], best[i], classes[i])).collect()
 }

@@ -6,7 +6,7 @@
 
 use burn::nn::conv::Conv2d;
 use burn::nn::pool::{AdaptiveAvgPool2d, AdaptiveAvgPool2dConfig, MaxPool2d};
-use burn::nn::{Dropout, DropoutConfig, Linear, LinearConfig, Relu};
+use burn::nn::{Dropout, DropoutConfig, Initializer, Linear, LinearConfig, Relu};
 use burn::prelude::*;
 
 use crate::config::{Backbone, DetectorConfig};
@@ -31,6 +31,21 @@ pub struct GridNet {
     cells: usize,
 }
 
+/// Expected share of cells holding a corner, used to start the presence
+/// logits there (RetinaNet's prior trick): a zero logit would claim half the
+/// cells and the optimizer would spend its first thousand steps undoing it.
+pub const PRESENCE_PRIOR: f64 = 0.03;
+
+/// Zero bias except the presence logit of every cell, set to the prior.
+fn prior_bias(mut layer: Linear, cells: usize, device: &Device) -> Linear {
+    let logit = -((1.0 - PRESENCE_PRIOR) / PRESENCE_PRIOR).ln() as f32;
+    let values: Vec<f32> = (0..cells * CELL_VALUES).map(|i| if i % CELL_VALUES == 0 { logit } else { 0.0 }).collect();
+    let n = values.len();
+    let prior = Tensor::<1>::from_data(TensorData::new(values, [n]), device);
+    layer.bias = layer.bias.map(|b| b.map(|old| trunk::replace_value(&old, prior)));
+    layer
+}
+
 /// The grid head's raw output, `[B, S, S, 5]`.
 #[derive(Debug, Clone)]
 pub struct GridOutput {
@@ -40,27 +55,19 @@ pub struct GridOutput {
 impl GridNet {
     pub fn new(config: &DetectorConfig, device: &Device) -> Self {
         let (features, pool, spatial, channels) = match config.backbone {
-            Backbone::Vgg16 => (
-                trunk::vgg16_convs(config, device),
-                trunk::max_pool_2x2(),
-                7,
-                config.channels(512),
-            ),
-            Backbone::Alexnet => (
-                trunk::alexnet_convs(config, device),
-                trunk::alexnet_pool(),
-                6,
-                config.channels(256),
-            ),
+            Backbone::Vgg16 => (trunk::vgg16_convs(config, device), trunk::max_pool_2x2(), 7, config.channels(512)),
+            Backbone::Alexnet => (trunk::alexnet_convs(config, device), trunk::alexnet_pool(), 6, config.channels(256)),
             Backbone::FasterRcnn => panic!("GridNet is for vgg16 and alexnet"),
         };
         let h = config.hidden;
         let s = config.grid_cells;
-        let classifier = vec![
-            LinearConfig::new(channels * spatial * spatial, h).init(device),
-            LinearConfig::new(h, h).init(device),
-            LinearConfig::new(h, s * s * CELL_VALUES).init(device),
-        ];
+        // PyTorch's default init for the hidden layers: torchvision's N(0, 0.01)
+        // for VGG suits 4096-wide layers but starves the narrow ones of signal.
+        let linear = |i: usize, o: usize| LinearConfig::new(i, o).init(device);
+        let head = LinearConfig::new(h, s * s * CELL_VALUES)
+            .with_initializer(Initializer::Normal { mean: 0.0, std: 0.01 })
+            .init(device);
+        let classifier = vec![linear(channels * spatial * spatial, h), linear(h, h), prior_bias(head, s * s, device)];
         Self {
             features,
             classifier,
@@ -89,24 +96,16 @@ impl GridNet {
         // torchvision: VGG applies dropout after each hidden layer, AlexNet before.
         let x = match self.backbone {
             Backbone::Alexnet => {
-                let x = self
-                    .act
-                    .forward(self.classifier[0].forward(self.dropout.forward(x)));
-                self.act
-                    .forward(self.classifier[1].forward(self.dropout.forward(x)))
+                let x = self.act.forward(self.classifier[0].forward(self.dropout.forward(x)));
+                self.act.forward(self.classifier[1].forward(self.dropout.forward(x)))
             }
             _ => {
-                let x = self
-                    .dropout
-                    .forward(self.act.forward(self.classifier[0].forward(x)));
-                self.dropout
-                    .forward(self.act.forward(self.classifier[1].forward(x)))
+                let x = self.dropout.forward(self.act.forward(self.classifier[0].forward(x)));
+                self.dropout.forward(self.act.forward(self.classifier[1].forward(x)))
             }
         };
         let out = self.classifier[2].forward(x);
-        GridOutput {
-            cells: out.reshape([b, self.cells, self.cells, CELL_VALUES]),
-        }
+        GridOutput { cells: out.reshape([b, self.cells, self.cells, CELL_VALUES]) }
     }
 
     pub fn forward(&self, x: Tensor<4>) -> GridOutput {

@@ -36,10 +36,7 @@ impl LabeledImage {
 
 /// Loads the images of a COCO file (paths relative to the file's folder)
 /// and preprocesses them. An annotation without a `point` uses its box centre.
-pub fn load_coco_set(
-    annotations: &Path,
-    preprocess_config: &PreprocessConfig,
-) -> Result<Vec<LabeledImage>, DataError> {
+pub fn load_coco_set(annotations: &Path, preprocess_config: &PreprocessConfig) -> Result<Vec<LabeledImage>, DataError> {
     let coco = read_coco(annotations)?;
     let root = annotations.parent().unwrap_or(Path::new("."));
     coco.images
@@ -62,10 +59,7 @@ pub fn load_coco_set(
             }
             let truth = coco
                 .annotations_of(im.id)
-                .map(|a| TruthCorner {
-                    bbox: a.bbox(),
-                    point: a.point.unwrap_or_else(|| a.bbox().centre()),
-                })
+                .map(|a| TruthCorner { bbox: a.bbox(), point: a.point.unwrap_or_else(|| a.bbox().centre()) })
                 .collect();
             Ok(LabeledImage {
                 path,

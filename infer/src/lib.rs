@@ -25,7 +25,5 @@ use burn::prelude::*;
 
 /// A tensor's values on the host, as `f32`.
 pub fn host<const D: usize>(t: Tensor<D>) -> Vec<f32> {
-    t.into_data()
-        .try_into_vec_as::<f32>()
-        .expect("float tensors convert to f32")
+    t.into_data().try_into_vec_as::<f32>().expect("float tensors convert to f32")
 }

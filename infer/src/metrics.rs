@@ -19,8 +19,9 @@ pub struct EvalMetrics {
     pub ap50: f64,
     pub precision: f64,
     pub recall: f64,
-    /// Mean distance (image pixels) from a true-positive box's centre to its corner.
-    pub mean_pixel_error: f64,
+    /// Mean distance (image pixels) from a true-positive box's centre to its
+    /// corner; `None` when nothing was found.
+    pub mean_pixel_error: Option<f64>,
     pub images: usize,
     pub ground_truths: usize,
     pub detections: usize,
@@ -31,16 +32,8 @@ pub struct EvalMetrics {
 pub const IOU_THRESHOLD: f32 = 0.5;
 
 /// Evaluates detections against the truth, image by image (same order).
-pub fn evaluate(
-    predictions: &[Vec<Detection>],
-    truth: &[Vec<TruthCorner>],
-    operating_score: f32,
-) -> EvalMetrics {
-    assert_eq!(
-        predictions.len(),
-        truth.len(),
-        "one prediction list per image"
-    );
+pub fn evaluate(predictions: &[Vec<Detection>], truth: &[Vec<TruthCorner>], operating_score: f32) -> EvalMetrics {
+    assert_eq!(predictions.len(), truth.len(), "one prediction list per image");
     let total_truth: usize = truth.iter().map(Vec::len).sum();
     let mut all: Vec<(f32, usize, usize)> = Vec::new();
     for (img, dets) in predictions.iter().enumerate() {
@@ -83,28 +76,13 @@ pub fn evaluate(
                 }
             }
         }
-        curve.push((
-            tp as f64 / total_truth.max(1) as f64,
-            tp as f64 / (tp + fp) as f64,
-        ));
+        curve.push((tp as f64 / total_truth.max(1) as f64, tp as f64 / (tp + fp) as f64));
     }
     EvalMetrics {
         ap50: average_precision(&curve),
-        precision: if op_tp + op_fp > 0 {
-            op_tp as f64 / (op_tp + op_fp) as f64
-        } else {
-            0.0
-        },
-        recall: if total_truth > 0 {
-            op_tp as f64 / total_truth as f64
-        } else {
-            0.0
-        },
-        mean_pixel_error: if errors.is_empty() {
-            f64::NAN
-        } else {
-            errors.iter().sum::<f64>() / errors.len() as f64
-        },
+        precision: if op_tp + op_fp > 0 { op_tp as f64 / (op_tp + op_fp) as f64 } else { 0.0 },
+        recall: if total_truth > 0 { op_tp as f64 / total_truth as f64 } else { 0.0 },
+        mean_pixel_error: (!errors.is_empty()).then(|| errors.iter().sum::<f64>() / errors.len() as f64),
         images: predictions.len(),
         ground_truths: total_truth,
         detections: all.len(),
@@ -126,9 +104,7 @@ pub fn average_precision(curve: &[(f64, f64)]) -> f64 {
     for i in (0..precision.len() - 1).rev() {
         precision[i] = precision[i].max(precision[i + 1]);
     }
-    (1..recall.len())
-        .map(|i| (recall[i] - recall[i - 1]) * precision[i])
-        .sum()
+    (1..recall.len()).map(|i| (recall[i] - recall[i - 1]) * precision[i]).sum()
 }
 
 #[cfg(test)]
@@ -136,43 +112,26 @@ mod tests {
     use super::*;
 
     fn det(x: f32, score: f32) -> Detection {
-        Detection {
-            bbox: BBox::new(x, 0.0, x + 10.0, 10.0),
-            score,
-            class: 0,
-        }
+        Detection { bbox: BBox::new(x, 0.0, x + 10.0, 10.0), score, class: 0 }
     }
     fn truth(x: f32) -> TruthCorner {
-        TruthCorner {
-            bbox: BBox::new(x, 0.0, x + 10.0, 10.0),
-            point: [x + 5.0, 5.0],
-        }
+        TruthCorner { bbox: BBox::new(x, 0.0, x + 10.0, 10.0), point: [x + 5.0, 5.0] }
     }
 
     #[test]
     fn hand_computed_ap_precision_recall() {
         // Image 0: two corners; detections: a hit (0.9), a miss (0.8), a hit shifted by 1 px (0.6).
         // Image 1: one corner, never found; one false detection (0.7).
-        let predictions = vec![
-            vec![det(0.0, 0.9), det(100.0, 0.8), det(51.0, 0.6)],
-            vec![det(200.0, 0.7)],
-        ];
+        let predictions = vec![vec![det(0.0, 0.9), det(100.0, 0.8), det(51.0, 0.6)], vec![det(200.0, 0.7)]];
         let truths = vec![vec![truth(0.0), truth(50.0)], vec![truth(20.0)]];
         let m = evaluate(&predictions, &truths, 0.5);
         // Ranked: TP (r 1/3, p 1), FP (1/3, 1/2), FP (1/3, 1/3), TP (2/3, 1/2).
         // Envelope: p = 1 up to r = 1/3, then 1/2 up to 2/3: AP = 1/3 + 1/6 = 1/2.
         assert!((m.ap50 - 0.5).abs() < 1e-12, "{}", m.ap50);
         assert!((m.precision - 0.5).abs() < 1e-12 && (m.recall - 2.0 / 3.0).abs() < 1e-12);
-        assert!(
-            (m.mean_pixel_error - 0.5).abs() < 1e-6,
-            "{}",
-            m.mean_pixel_error
-        );
+        assert!((m.mean_pixel_error.unwrap() - 0.5).abs() < 1e-6, "{:?}", m.mean_pixel_error);
         // Perfect detections: AP 1.
         let m = evaluate(&[vec![det(0.0, 0.9)]], &[vec![truth(0.0)]], 0.5);
-        assert_eq!(
-            (m.ap50, m.precision, m.recall, m.mean_pixel_error),
-            (1.0, 1.0, 1.0, 0.0)
-        );
+        assert_eq!((m.ap50, m.precision, m.recall, m.mean_pixel_error), (1.0, 1.0, 1.0, Some(0.0)));
     }
 }

@@ -8,6 +8,8 @@ use crate::config::{Backbone, DetectorConfig};
 use crate::faster_rcnn::{self, FasterRcnn, ProposalSettings};
 use crate::grid_net::{CELL_VALUES, GridNet};
 
+// One network lives per process; boxing the larger variant would buy nothing.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone)]
 pub enum Network {
     FasterRcnn(FasterRcnn),
@@ -86,8 +88,8 @@ impl Network {
                         out.push(Vec::new());
                         continue;
                     }
-                    let logits = head.class_logits.clone().slice([row..row + rows]);
-                    let deltas = head.box_deltas.clone().slice([row..row + rows]);
+                    let logits = head.class_logits.clone().narrow(0, row, rows);
+                    let deltas = head.box_deltas.clone().narrow(0, row, rows);
                     row += rows;
                     let dets = faster_rcnn::postprocess(
                         logits,
@@ -99,11 +101,7 @@ impl Network {
                         d.nms_iou,
                         d.max_detections,
                     );
-                    out.push(
-                        dets.into_iter()
-                            .map(|(bbox, score, class)| Detection { bbox, score, class })
-                            .collect(),
-                    );
+                    out.push(dets.into_iter().map(|(bbox, score, class)| Detection { bbox, score, class }).collect());
                 }
                 out
             }
@@ -113,12 +111,7 @@ impl Network {
                 let values = crate::host(cells);
                 (0..b)
                     .map(|i| {
-                        decode_grid(
-                            &values[i * s * s * CELL_VALUES..(i + 1) * s * s * CELL_VALUES],
-                            s,
-                            size,
-                            config,
-                        )
+                        decode_grid(&values[i * s * s * CELL_VALUES..(i + 1) * s * s * CELL_VALUES], s, size, config)
                     })
                     .collect()
             }
@@ -144,24 +137,13 @@ pub fn decode_grid(values: &[f32], s: usize, size: f32, config: &DetectorConfig)
             }
             let cx = (col as f32 + sigmoid(v[1])) * cell;
             let cy = (row as f32 + sigmoid(v[2])) * cell;
-            let (w, h) = (
-                v[3].clamp(-4.0, 4.0).exp() * cell,
-                v[4].clamp(-4.0, 4.0).exp() * cell,
-            );
-            boxes.push(
-                BBox::new(cx - w / 2.0, cy - h / 2.0, cx + w / 2.0, cy + h / 2.0).clip(size, size),
-            );
+            let (w, h) = (v[3].clamp(-4.0, 4.0).exp() * cell, v[4].clamp(-4.0, 4.0).exp() * cell);
+            boxes.push(BBox::new(cx - w / 2.0, cy - h / 2.0, cx + w / 2.0, cy + h / 2.0).clip(size, size));
             scores.push(score);
         }
     }
     let classes = vec![0; boxes.len()];
     let mut keep = batched_nms(&boxes, &scores, &classes, d.nms_iou);
     keep.truncate(d.max_detections);
-    keep.into_iter()
-        .map(|i| Detection {
-            bbox: boxes[i],
-            score: scores[i],
-            class: 0,
-        })
-        .collect()
+    keep.into_iter().map(|i| Detection { bbox: boxes[i], score: scores[i], class: 0 }).collect()
 }

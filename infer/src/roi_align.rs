@@ -35,12 +35,6 @@ pub fn roi_align(features: Tensor<4>, rois: &[BBox], output: usize, sampling: us
         .with_padding_mode(GridSamplePaddingMode::Zeros)
         .with_align_corners(false);
     // [1, C, K*s, s] -> [K, C, s, s]
-    let sampled = features
-        .grid_sample_2d(grid, options)
-        .reshape([c, k, s, s])
-        .swap_dims(0, 1);
-    AvgPool2dConfig::new([sampling, sampling])
-        .with_strides([sampling, sampling])
-        .init()
-        .forward(sampled)
+    let sampled = features.grid_sample_2d(grid, options).reshape([c, k, s, s]).swap_dims(0, 1);
+    AvgPool2dConfig::new([sampling, sampling]).with_strides([sampling, sampling]).init().forward(sampled)
 }

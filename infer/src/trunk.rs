@@ -4,15 +4,31 @@
 
 use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::nn::pool::{MaxPool2d, MaxPool2dConfig};
-use burn::nn::{PaddingConfig2d, Relu};
+use burn::nn::{Initializer, PaddingConfig2d, Relu};
 use burn::prelude::*;
+
+/// torchvision's VGG initialisation: He normal over the fan-out, zero bias.
+/// (PyTorch's default init leaves a 13-layer VGG without batch norm nearly
+/// untrainable from scratch.)
+pub fn he_fan_out() -> Initializer {
+    Initializer::KaimingNormal { gain: std::f64::consts::SQRT_2, fan_out_only: true }
+}
+
+pub fn zero_bias(mut conv: Conv2d) -> Conv2d {
+    conv.bias = conv.bias.map(|b| b.map(|t| replace_value(&t, t.zeros_like())));
+    conv
+}
+
+/// A new value for a parameter tensor that keeps it trainable: a tensor made
+/// from scratch is not tracked by autodiff until told so.
+pub fn replace_value<const D: usize>(old: &Tensor<D>, new: Tensor<D>) -> Tensor<D> {
+    new.set_require_grad(old.is_require_grad())
+}
 
 use crate::config::DetectorConfig;
 
 /// VGG16's 13 convolutions; max pooling follows convolutions 2, 4, 7, 10, 13.
-pub const VGG16_CHANNELS: [usize; 13] = [
-    64, 64, 128, 128, 256, 256, 256, 512, 512, 512, 512, 512, 512,
-];
+pub const VGG16_CHANNELS: [usize; 13] = [64, 64, 128, 128, 256, 256, 256, 512, 512, 512, 512, 512, 512];
 const VGG16_POOL_AFTER: [usize; 5] = [1, 3, 6, 9, 12];
 
 pub fn vgg16_convs(config: &DetectorConfig, device: &Device) -> Vec<Conv2d> {
@@ -33,13 +49,7 @@ pub fn vgg16_convs(config: &DetectorConfig, device: &Device) -> Vec<Conv2d> {
 /// Runs VGG16's convolutions on `x` [B, C, H, W]; with `last_pool` the output
 /// has stride 32 (the classifier's input), without it stride 16 (Faster
 /// R-CNN's trunk).
-pub fn vgg16_forward(
-    convs: &[Conv2d],
-    pool: &MaxPool2d,
-    act: &Relu,
-    mut x: Tensor<4>,
-    last_pool: bool,
-) -> Tensor<4> {
+pub fn vgg16_forward(convs: &[Conv2d], pool: &MaxPool2d, act: &Relu, mut x: Tensor<4>, last_pool: bool) -> Tensor<4> {
     for (i, conv) in convs.iter().enumerate() {
         x = act.forward(conv.forward(x));
         if VGG16_POOL_AFTER.contains(&i) && (last_pool || i != 12) {
@@ -83,12 +93,7 @@ pub fn alexnet_pool() -> MaxPool2d {
     MaxPool2dConfig::new([3, 3]).with_strides([2, 2]).init()
 }
 
-pub fn alexnet_forward(
-    convs: &[Conv2d],
-    pool: &MaxPool2d,
-    act: &Relu,
-    mut x: Tensor<4>,
-) -> Tensor<4> {
+pub fn alexnet_forward(convs: &[Conv2d], pool: &MaxPool2d, act: &Relu, mut x: Tensor<4>) -> Tensor<4> {
     for (i, conv) in convs.iter().enumerate() {
         x = act.forward(conv.forward(x));
         if matches!(i, 0 | 1 | 4) {

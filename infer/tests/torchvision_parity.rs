@@ -11,11 +11,9 @@ use infer::roi_align::roi_align;
 use serde_json::Value;
 
 fn fixture() -> Value {
-    let text = std::fs::read_to_string(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/tests/fixtures/torchvision_reference.json"
-    ))
-    .unwrap();
+    let text =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/torchvision_reference.json"))
+            .unwrap();
     serde_json::from_str(&text).unwrap()
 }
 
@@ -24,31 +22,18 @@ fn boxes(v: &Value) -> Vec<BBox> {
         .unwrap()
         .iter()
         .map(|r| {
-            let r: Vec<f32> = r
-                .as_array()
-                .unwrap()
-                .iter()
-                .map(|x| x.as_f64().unwrap() as f32)
-                .collect();
+            let r: Vec<f32> = r.as_array().unwrap().iter().map(|x| x.as_f64().unwrap() as f32).collect();
             BBox::new(r[0], r[1], r[2], r[3])
         })
         .collect()
 }
 
 fn floats(v: &Value) -> Vec<f32> {
-    v.as_array()
-        .unwrap()
-        .iter()
-        .map(|x| x.as_f64().unwrap() as f32)
-        .collect()
+    v.as_array().unwrap().iter().map(|x| x.as_f64().unwrap() as f32).collect()
 }
 
 fn indices(v: &Value) -> Vec<usize> {
-    v.as_array()
-        .unwrap()
-        .iter()
-        .map(|x| x.as_u64().unwrap() as usize)
-        .collect()
+    v.as_array().unwrap().iter().map(|x| x.as_u64().unwrap() as usize).collect()
 }
 
 fn close(a: f32, b: f32, what: &str) {
@@ -82,12 +67,7 @@ fn box_coding_matches_including_the_size_clamp() {
     for name in ["unit", "head"] {
         let w = floats(&c[name]["weights"]);
         let coder = BoxCoder::new([w[0], w[1], w[2], w[3]]);
-        let deltas: Vec<Vec<f32>> = c[name]["deltas"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(floats)
-            .collect();
+        let deltas: Vec<Vec<f32>> = c[name]["deltas"].as_array().unwrap().iter().map(floats).collect();
         for (k, d) in deltas.iter().enumerate() {
             let ours = coder.encode(&reference[k], &target[k]);
             for j in 0..4 {
@@ -95,19 +75,9 @@ fn box_coding_matches_including_the_size_clamp() {
             }
         }
         for key in ["deltas", "wild_deltas"] {
-            let decoded_key = if key == "deltas" {
-                "decoded"
-            } else {
-                "wild_decoded"
-            };
+            let decoded_key = if key == "deltas" { "decoded" } else { "wild_decoded" };
             let want = boxes(&c[name][decoded_key]);
-            for (k, d) in c[name][key]
-                .as_array()
-                .unwrap()
-                .iter()
-                .map(floats)
-                .enumerate()
-            {
+            for (k, d) in c[name][key].as_array().unwrap().iter().map(floats).enumerate() {
                 close_box(
                     &coder.decode(&reference[k], [d[0], d[1], d[2], d[3]]),
                     &want[k],
@@ -122,15 +92,9 @@ fn box_coding_matches_including_the_size_clamp() {
 fn anchors_match_in_value_and_order() {
     let f = fixture();
     let a = &f["anchors"];
-    let config = AnchorConfig {
-        sizes: floats(&a["sizes"]),
-        aspect_ratios: floats(&a["aspect_ratios"]),
-    };
-    let ours = config.grid_anchors(
-        a["grid_h"].as_u64().unwrap() as usize,
-        a["grid_w"].as_u64().unwrap() as usize,
-        16.0,
-    );
+    let config = AnchorConfig { sizes: floats(&a["sizes"]), aspect_ratios: floats(&a["aspect_ratios"]) };
+    let ours =
+        config.grid_anchors(a["grid_h"].as_u64().unwrap() as usize, a["grid_w"].as_u64().unwrap() as usize, 16.0);
     let want = boxes(&a["anchors"]);
     assert_eq!(ours.len(), want.len());
     for (k, (o, w)) in ours.iter().zip(&want).enumerate() {
@@ -146,32 +110,19 @@ fn nms_and_batched_nms_keep_the_same_boxes_in_the_same_order() {
     let classes = indices(&n["classes"]);
     assert_eq!(nms(&b, &s, 0.5), indices(&n["keep_05"]));
     assert_eq!(nms(&b, &s, 0.7), indices(&n["keep_07"]));
-    assert_eq!(
-        batched_nms(&b, &s, &classes, 0.5),
-        indices(&n["batched_keep_05"])
-    );
+    assert_eq!(batched_nms(&b, &s, &classes, 0.5), indices(&n["batched_keep_05"]));
 }
 
 #[test]
 fn clipping_and_small_box_removal_match() {
     let f = fixture();
     let c = &f["clip"];
-    let (w, h) = (
-        c["width"].as_f64().unwrap() as f32,
-        c["height"].as_f64().unwrap() as f32,
-    );
-    for (k, (b, want)) in boxes(&c["boxes"])
-        .iter()
-        .zip(boxes(&c["clipped"]))
-        .enumerate()
-    {
+    let (w, h) = (c["width"].as_f64().unwrap() as f32, c["height"].as_f64().unwrap() as f32);
+    for (k, (b, want)) in boxes(&c["boxes"]).iter().zip(boxes(&c["clipped"])).enumerate() {
         close_box(&b.clip(w, h), &want, &format!("clip {k}"));
     }
     let s = &f["small"];
-    assert_eq!(
-        remove_small(&boxes(&s["boxes"]), s["min_size"].as_f64().unwrap() as f32),
-        indices(&s["keep"])
-    );
+    assert_eq!(remove_small(&boxes(&s["boxes"]), s["min_size"].as_f64().unwrap() as f32), indices(&s["keep"]));
 }
 
 #[test]
@@ -180,10 +131,8 @@ fn roi_align_matches_for_boxes_inside_the_map() {
     let r = &f["roi_align"];
     let shape: Vec<usize> = indices(&r["shape"]);
     let device = Device::flex();
-    let map = Tensor::<4>::from_data(
-        TensorData::new(floats(&r["features"]), [1, shape[0], shape[1], shape[2]]),
-        &device,
-    );
+    let map =
+        Tensor::<4>::from_data(TensorData::new(floats(&r["features"]), [1, shape[0], shape[1], shape[2]]), &device);
     let rois = boxes(&r["rois"]);
     let out = infer::host(roi_align(
         map,
@@ -193,10 +142,6 @@ fn roi_align_matches_for_boxes_inside_the_map() {
     ));
     let want = floats(&r["output"]);
     assert_eq!(out.len(), want.len());
-    let worst = out
-        .iter()
-        .zip(&want)
-        .map(|(a, b)| (a - b).abs())
-        .fold(0.0f32, f32::max);
+    let worst = out.iter().zip(&want).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
     assert!(worst < 1e-5, "largest difference {worst}");
 }

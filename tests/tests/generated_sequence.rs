@@ -17,24 +17,14 @@ fn a_generated_sequence_satisfies_the_folder_contract() {
     let seq = dir.path().join("sequence");
 
     let truth = formats::read_tum(&seq.join("groundtruth.txt")).unwrap();
-    truth
-        .check_increasing(&seq.join("groundtruth.txt"))
-        .unwrap();
+    truth.check_increasing(&seq.join("groundtruth.txt")).unwrap();
     assert_eq!(truth.len(), 5);
     let calib = formats::read_calibration(&seq.join("calib.json")).unwrap();
     for &t in &truth.stamps {
-        let image =
-            datasets::atomic::read_image(&seq.join("rgb").join(format!("{}.png", stamp_name(t))))
-                .unwrap();
-        assert_eq!(
-            (image.width(), image.height()),
-            (calib.camera.width, calib.camera.height)
-        );
-        let cloud = formats::read_cloud(
-            &seq.join("cloud").join(format!("{}.pcd", stamp_name(t))),
-            NonFinite::Reject,
-        )
-        .unwrap();
+        let image = datasets::atomic::read_image(&seq.join("rgb").join(format!("{}.png", stamp_name(t)))).unwrap();
+        assert_eq!((image.width(), image.height()), (calib.camera.width, calib.camera.height));
+        let cloud =
+            formats::read_cloud(&seq.join("cloud").join(format!("{}.pcd", stamp_name(t))), NonFinite::Reject).unwrap();
         assert!(cloud.len() > 5000);
     }
     let odometry = formats::read_odometry(&seq.join("odom.csv")).unwrap();

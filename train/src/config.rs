@@ -72,21 +72,16 @@ impl TrainConfig {
             return Err(format!("weight decay {} must be >= 0", self.weight_decay));
         }
         if !(0.0..0.9).contains(&self.val_fraction) {
-            return Err(format!(
-                "validation fraction {} outside [0, 0.9)",
-                self.val_fraction
-            ));
+            return Err(format!("validation fraction {} outside [0, 0.9)", self.val_fraction));
         }
         Ok(())
     }
 
-    /// The learning rate at `iteration` of `total`.
+    /// The learning rate at `iteration` of `total`: linear warm-up (cut to a
+    /// fifth of short runs), then a cosine decay to 1% of the peak.
     pub fn lr_at(&self, iteration: usize, total: usize) -> f64 {
-        let warm = if self.warmup_iterations > 0 {
-            ((iteration + 1) as f64 / self.warmup_iterations as f64).min(1.0)
-        } else {
-            1.0
-        };
+        let warmup = self.warmup_iterations.min(total / 5);
+        let warm = if warmup > 0 { ((iteration + 1) as f64 / warmup as f64).min(1.0) } else { 1.0 };
         let progress = iteration as f64 / total.max(1) as f64;
         let cosine = 0.01 + 0.99 * 0.5 * (1.0 + (std::f64::consts::PI * progress).cos());
         self.lr * warm * cosine

@@ -20,11 +20,7 @@ pub struct Losses {
 
 impl Losses {
     fn new(parts: Vec<(&'static str, Tensor<1>)>) -> Self {
-        let total = parts
-            .iter()
-            .map(|(_, t)| t.clone())
-            .reduce(|a, b| a + b)
-            .expect("at least one part");
+        let total = parts.iter().map(|(_, t)| t.clone()).reduce(|a, b| a + b).expect("at least one part");
         Self { total, parts }
     }
 }
@@ -66,8 +62,7 @@ fn zero(device: &Device) -> Tensor<1> {
 pub fn rpn_losses(rpn: &RpnOutput, targets: &[RpnTargets]) -> (Tensor<1>, Tensor<1>) {
     let device = rpn.objectness.device();
     let [b, n] = rpn.objectness.dims();
-    let (mut idx, mut labels, mut pos_idx, mut pos_targets) =
-        (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let (mut idx, mut labels, mut pos_idx, mut pos_targets) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     for (i, t) in targets.iter().enumerate() {
         for &(a, l) in &t.sampled {
             idx.push((i * n + a) as i64);
@@ -82,24 +77,14 @@ pub fn rpn_losses(rpn: &RpnOutput, targets: &[RpnTargets]) -> (Tensor<1>, Tensor
     if sampled == 0 {
         return (zero(&device), zero(&device));
     }
-    let logits = rpn
-        .objectness
-        .clone()
-        .reshape([b * n])
-        .select(0, int_tensor(idx, &device));
+    let logits = rpn.objectness.clone().reshape([b * n]).select(0, int_tensor(idx, &device));
     let objectness = bce_with_logits(logits, float_tensor(labels, [sampled], &device)).mean();
     let box_loss = if pos_idx.is_empty() {
         zero(&device)
     } else {
         let p = pos_idx.len();
-        let pred = rpn
-            .deltas
-            .clone()
-            .reshape([b * n, 4])
-            .select(0, int_tensor(pos_idx, &device));
-        smooth_l1(pred, float_tensor(pos_targets, [p, 4], &device), 1.0 / 9.0)
-            .sum()
-            .div_scalar(sampled as f32)
+        let pred = rpn.deltas.clone().reshape([b * n, 4]).select(0, int_tensor(pos_idx, &device));
+        smooth_l1(pred, float_tensor(pos_targets, [p, 4], &device), 1.0 / 9.0).sum().div_scalar(sampled as f32)
     };
     (objectness, box_loss)
 }
@@ -108,19 +93,12 @@ pub fn rpn_losses(rpn: &RpnOutput, targets: &[RpnTargets]) -> (Tensor<1>, Tensor
 /// 1/9) on the foreground RoIs' deltas of their class, divided by the RoIs.
 pub fn head_losses(head: &HeadOutput, targets: &[RoiTargets]) -> (Tensor<1>, Tensor<1>) {
     let device = head.class_logits.device();
-    let labels: Vec<i64> = targets
-        .iter()
-        .flat_map(|t| t.labels.iter().map(|&l| l as i64))
-        .collect();
+    let labels: Vec<i64> = targets.iter().flat_map(|t| t.labels.iter().map(|&l| l as i64)).collect();
     let k = labels.len();
-    let classification = CrossEntropyLossConfig::new().init(&device).forward(
-        head.class_logits.clone(),
-        int_tensor(labels.clone(), &device),
-    );
-    let deltas: Vec<[f32; 4]> = targets
-        .iter()
-        .flat_map(|t| t.deltas.iter().copied())
-        .collect();
+    let classification = CrossEntropyLossConfig::new()
+        .init(&device)
+        .forward(head.class_logits.clone(), int_tensor(labels.clone(), &device));
+    let deltas: Vec<[f32; 4]> = targets.iter().flat_map(|t| t.deltas.iter().copied()).collect();
     let (mut rows, mut cols, mut goal) = (Vec::new(), Vec::new(), Vec::new());
     for (r, (&l, d)) in labels.iter().zip(&deltas).enumerate() {
         if l > 0 {
@@ -135,13 +113,7 @@ pub fn head_losses(head: &HeadOutput, targets: &[RoiTargets]) -> (Tensor<1>, Ten
         let p = rows.len();
         let picked = head.box_deltas.clone().select(0, int_tensor(rows, &device));
         let cols = Tensor::<2, Int>::from_data(TensorData::new(cols, [p, 4]), &device);
-        smooth_l1(
-            picked.gather(1, cols),
-            float_tensor(goal, [p, 4], &device),
-            1.0 / 9.0,
-        )
-        .sum()
-        .div_scalar(k as f32)
+        smooth_l1(picked.gather(1, cols), float_tensor(goal, [p, 4], &device), 1.0 / 9.0).sum().div_scalar(k as f32)
     };
     (classification, box_loss)
 }
@@ -170,56 +142,28 @@ pub fn grid_losses(out: &GridOutput, targets: &[GridTargets], positive_weight: f
     let [b, s, _, v] = out.cells.dims();
     let n = b * s * s;
     let cells = out.cells.clone().reshape([n, v]);
-    let presence: Vec<f32> = targets
-        .iter()
-        .flat_map(|t| t.presence.iter().copied())
-        .collect();
-    let weights: Vec<f32> = presence
-        .iter()
-        .map(|&p| if p > 0.0 { positive_weight } else { 1.0 })
-        .collect();
+    let presence: Vec<f32> = targets.iter().flat_map(|t| t.presence.iter().copied()).collect();
+    let weights: Vec<f32> = presence.iter().map(|&p| if p > 0.0 { positive_weight } else { 1.0 }).collect();
     let logits = cells.clone().slice([0..n, 0..1]).reshape([n]);
     let presence_loss = (bce_with_logits(logits, float_tensor(presence.clone(), [n], &device))
         * float_tensor(weights, [n], &device))
     .mean();
-    let pos: Vec<i64> = (0..n)
-        .filter(|&i| presence[i] > 0.0)
-        .map(|i| i as i64)
-        .collect();
+    let pos: Vec<i64> = (0..n).filter(|&i| presence[i] > 0.0).map(|i| i as i64).collect();
     if pos.is_empty() {
-        return Losses::new(vec![
-            ("presence", presence_loss),
-            ("offset", zero(&device)),
-            ("size", zero(&device)),
-        ]);
+        return Losses::new(vec![("presence", presence_loss), ("offset", zero(&device)), ("size", zero(&device))]);
     }
     let p = pos.len();
-    let offsets: Vec<f32> = pos
-        .iter()
-        .flat_map(|&i| targets[i as usize / (s * s)].offsets[i as usize % (s * s)])
-        .collect();
-    let sizes: Vec<f32> = pos
-        .iter()
-        .flat_map(|&i| targets[i as usize / (s * s)].log_sizes[i as usize % (s * s)])
-        .collect();
+    let offsets: Vec<f32> =
+        pos.iter().flat_map(|&i| targets[i as usize / (s * s)].offsets[i as usize % (s * s)]).collect();
+    let sizes: Vec<f32> =
+        pos.iter().flat_map(|&i| targets[i as usize / (s * s)].log_sizes[i as usize % (s * s)]).collect();
     let picked = cells.select(0, int_tensor(pos, &device));
-    let offset_loss = smooth_l1(
-        sigmoid(picked.clone().slice([0..p, 1..3])),
-        float_tensor(offsets, [p, 2], &device),
-        1.0 / 9.0,
-    )
-    .sum()
-    .div_scalar(p as f32);
-    let size_loss = smooth_l1(
-        picked.slice([0..p, 3..5]),
-        float_tensor(sizes, [p, 2], &device),
-        1.0 / 9.0,
-    )
-    .sum()
-    .div_scalar(p as f32);
-    Losses::new(vec![
-        ("presence", presence_loss),
-        ("offset", offset_loss),
-        ("size", size_loss),
-    ])
+    let offset_loss =
+        smooth_l1(sigmoid(picked.clone().slice([0..p, 1..3])), float_tensor(offsets, [p, 2], &device), 1.0 / 9.0)
+            .sum()
+            .div_scalar(p as f32);
+    let size_loss = smooth_l1(picked.slice([0..p, 3..5]), float_tensor(sizes, [p, 2], &device), 1.0 / 9.0)
+        .sum()
+        .div_scalar(p as f32);
+    Losses::new(vec![("presence", presence_loss), ("offset", offset_loss), ("size", size_loss)])
 }

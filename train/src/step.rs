@@ -29,32 +29,20 @@ pub fn make_batch(images: &[&LabeledImage], flips: &[bool], size: u32, device: &
         if flip {
             edges.push(flip_horizontal(&im.edges));
             let s = size as f32;
-            boxes.push(
-                b.iter()
-                    .map(|b| BBox::new(s - b.x2, b.y1, s - b.x1, b.y2))
-                    .collect(),
-            );
+            boxes.push(b.iter().map(|b| BBox::new(s - b.x2, b.y1, s - b.x1, b.y2)).collect());
         } else {
             edges.push(im.edges.clone());
             boxes.push(b);
         }
     }
-    Batch {
-        inputs: input_tensor(&edges, device),
-        boxes,
-    }
+    Batch { inputs: input_tensor(&edges, device), boxes }
 }
 
 /// Weight of a positive cell in the grid heads' presence loss.
 pub const GRID_POSITIVE_WEIGHT: f32 = 5.0;
 
 /// The loss of `network` on `batch`; `rng` drives the anchor and RoI sampling.
-pub fn batch_losses(
-    network: &Network,
-    config: &DetectorConfig,
-    batch: &Batch,
-    rng: &mut ChaCha8Rng,
-) -> Losses {
+pub fn batch_losses(network: &Network, config: &DetectorConfig, batch: &Batch, rng: &mut ChaCha8Rng) -> Losses {
     let size = config.input_size() as f32;
     match network {
         Network::FasterRcnn(m) => {
@@ -62,11 +50,8 @@ pub fn batch_losses(
             let rpn = m.rpn(features.clone());
             let [b, n] = rpn.objectness.dims();
             let anchors = faster_rcnn::anchors_for(&config.anchors, rpn.grid_h, rpn.grid_w);
-            let rpn_t: Vec<_> = batch
-                .boxes
-                .iter()
-                .map(|truth| rpn_targets(&anchors, truth, &config.rpn, rng))
-                .collect();
+            let rpn_t: Vec<_> =
+                batch.boxes.iter().map(|truth| rpn_targets(&anchors, truth, &config.rpn, rng)).collect();
             let objectness = infer::host(rpn.objectness.clone());
             let deltas = infer::host(rpn.deltas.clone());
             let settings = ProposalSettings {
@@ -94,11 +79,8 @@ pub fn batch_losses(
         }
         Network::Grid(m) => {
             let out = m.forward(batch.inputs.clone());
-            let targets: Vec<_> = batch
-                .boxes
-                .iter()
-                .map(|truth| grid_targets(truth, config.grid_cells, size))
-                .collect();
+            let targets: Vec<_> =
+                batch.boxes.iter().map(|truth| grid_targets(truth, config.grid_cells, size)).collect();
             grid_losses(&out, &targets, GRID_POSITIVE_WEIGHT)
         }
     }

@@ -21,22 +21,15 @@ pub enum Match {
 /// Matches `candidates` to `truth`: IoU >= `fg` is a match, < `bg` is
 /// background, between is ignored; with `low_quality`, each ground truth
 /// also claims the candidates of its highest IoU (as the RPN does).
-pub fn match_boxes(
-    candidates: &[BBox],
-    truth: &[BBox],
-    fg: f32,
-    bg: f32,
-    low_quality: bool,
-) -> Vec<Match> {
+pub fn match_boxes(candidates: &[BBox], truth: &[BBox], fg: f32, bg: f32, low_quality: bool) -> Vec<Match> {
     if truth.is_empty() {
         return vec![Match::Background; candidates.len()];
     }
     let iou = box_iou(truth, candidates); // [G][N]
     let mut matches: Vec<Match> = (0..candidates.len())
         .map(|n| {
-            let (best_g, best) = (0..truth.len())
-                .map(|g| (g, iou[g][n]))
-                .fold((0, f32::MIN), |a, b| if b.1 > a.1 { b } else { a });
+            let (best_g, best) =
+                (0..truth.len()).map(|g| (g, iou[g][n])).fold((0, f32::MIN), |a, b| if b.1 > a.1 { b } else { a });
             if best >= fg {
                 Match::Object(best_g)
             } else if best < bg {
@@ -69,18 +62,9 @@ pub fn match_boxes(
 
 /// Picks at most `batch` candidates, at most `fraction` of them positive,
 /// at random: returns (positives, negatives).
-pub fn sample(
-    matches: &[Match],
-    batch: usize,
-    fraction: f32,
-    rng: &mut ChaCha8Rng,
-) -> (Vec<usize>, Vec<usize>) {
-    let mut pos: Vec<usize> = (0..matches.len())
-        .filter(|&i| matches!(matches[i], Match::Object(_)))
-        .collect();
-    let mut neg: Vec<usize> = (0..matches.len())
-        .filter(|&i| matches[i] == Match::Background)
-        .collect();
+pub fn sample(matches: &[Match], batch: usize, fraction: f32, rng: &mut ChaCha8Rng) -> (Vec<usize>, Vec<usize>) {
+    let mut pos: Vec<usize> = (0..matches.len()).filter(|&i| matches!(matches[i], Match::Object(_))).collect();
+    let mut neg: Vec<usize> = (0..matches.len()).filter(|&i| matches[i] == Match::Background).collect();
     let n_pos = pos.len().min((batch as f32 * fraction) as usize);
     let n_neg = neg.len().min(batch - n_pos);
     pos.shuffle(rng);
@@ -106,27 +90,16 @@ pub fn rpn_targets(
     rng: &mut ChaCha8Rng,
 ) -> RpnTargets {
     let matches = match_boxes(anchors, truth, config.fg_iou, config.bg_iou, true);
-    let (pos, neg) = sample(
-        &matches,
-        config.batch_size_per_image,
-        config.positive_fraction,
-        rng,
-    );
+    let (pos, neg) = sample(&matches, config.batch_size_per_image, config.positive_fraction, rng);
     let coder = BoxCoder::new([1.0; 4]);
     let positives = pos
         .iter()
         .map(|&i| {
-            let Match::Object(g) = matches[i] else {
-                unreachable!("positives are matched")
-            };
+            let Match::Object(g) = matches[i] else { unreachable!("positives are matched") };
             (i, coder.encode(&anchors[i], &truth[g]))
         })
         .collect();
-    let sampled = pos
-        .iter()
-        .map(|&i| (i, 1.0))
-        .chain(neg.iter().map(|&i| (i, 0.0)))
-        .collect();
+    let sampled = pos.iter().map(|&i| (i, 1.0)).chain(neg.iter().map(|&i| (i, 0.0))).collect();
     RpnTargets { sampled, positives }
 }
 
@@ -151,12 +124,7 @@ pub fn roi_targets(
     let mut candidates = proposals.to_vec();
     candidates.extend_from_slice(truth);
     let matches = match_boxes(&candidates, truth, config.fg_iou, config.bg_iou, false);
-    let (pos, neg) = sample(
-        &matches,
-        config.batch_size_per_image,
-        config.positive_fraction,
-        rng,
-    );
+    let (pos, neg) = sample(&matches, config.batch_size_per_image, config.positive_fraction, rng);
     let coder = BoxCoder::new(config.box_weights);
     let mut t = RoiTargets::default();
     for &i in pos.iter().chain(&neg) {
@@ -187,11 +155,7 @@ pub struct GridTargets {
 pub fn grid_targets(truth: &[BBox], cells: usize, input_size: f32) -> GridTargets {
     let n = cells * cells;
     let cell = input_size / cells as f32;
-    let mut t = GridTargets {
-        presence: vec![0.0; n],
-        offsets: vec![[0.0; 2]; n],
-        log_sizes: vec![[0.0; 2]; n],
-    };
+    let mut t = GridTargets { presence: vec![0.0; n], offsets: vec![[0.0; 2]; n], log_sizes: vec![[0.0; 2]; n] };
     for b in truth {
         let [cx, cy] = b.centre();
         let (col, row) = ((cx / cell).floor(), (cy / cell).floor());
@@ -204,10 +168,7 @@ pub fn grid_targets(truth: &[BBox], cells: usize, input_size: f32) -> GridTarget
         }
         t.presence[k] = 1.0;
         t.offsets[k] = [cx / cell - col, cy / cell - row];
-        t.log_sizes[k] = [
-            (b.width().max(1.0) / cell).ln(),
-            (b.height().max(1.0) / cell).ln(),
-        ];
+        t.log_sizes[k] = [(b.width().max(1.0) / cell).ln(), (b.height().max(1.0) / cell).ln()];
     }
     t
 }

@@ -69,14 +69,11 @@ fn mix(a: u64, b: u64) -> u64 {
 fn optimizer(config: &TrainConfig) -> ModuleOptimizer {
     let clip = Some(GradientClippingConfig::Norm(10.0));
     match config.optimizer {
-        OptimizerKind::Adam => AdamWConfig::new()
-            .with_weight_decay(config.weight_decay as f32)
-            .with_grad_clipping(clip)
-            .init(),
+        OptimizerKind::Adam => {
+            AdamWConfig::new().with_weight_decay(config.weight_decay as f32).with_grad_clipping(clip).init()
+        }
         OptimizerKind::Sgd => SgdConfig::new()
-            .with_momentum(Some(
-                MomentumConfig::new().with_momentum(0.9).with_dampening(0.0),
-            ))
+            .with_momentum(Some(MomentumConfig::new().with_momentum(0.9).with_dampening(0.0)))
             .with_weight_decay(Some(WeightDecayConfig::new(config.weight_decay as f32)))
             .with_gradient_clipping(clip)
             .init(),
@@ -84,12 +81,7 @@ fn optimizer(config: &TrainConfig) -> ModuleOptimizer {
 }
 
 /// One optimizer step on whichever network it is.
-fn apply(
-    network: Network,
-    optim: &mut ModuleOptimizer,
-    lr: f64,
-    grads: burn::tensor::Gradients,
-) -> Network {
+fn apply(network: Network, optim: &mut ModuleOptimizer, lr: f64, grads: burn::tensor::Gradients) -> Network {
     match network {
         Network::FasterRcnn(m) => {
             let g = GradientsParams::from_grads(grads, &m);
@@ -111,23 +103,12 @@ fn save_network(network: &Network, stem: &Path) -> Result<()> {
 }
 
 fn csv_header(backbone: Backbone) -> String {
-    let parts = if backbone == Backbone::FasterRcnn {
-        FASTER_RCNN_PARTS
-    } else {
-        GRID_PARTS
-    };
-    format!(
-        "kind,epoch,iteration,loss,{},lr,elapsed_s\n",
-        parts.join(",")
-    )
+    let parts = if backbone == Backbone::FasterRcnn { FASTER_RCNN_PARTS } else { GRID_PARTS };
+    format!("kind,epoch,iteration,loss,{},lr,elapsed_s\n", parts.join(","))
 }
 
 /// Splits the training set into (train, validation) deterministically.
-fn split<'a>(
-    all: &'a [LabeledImage],
-    fraction: f32,
-    seed: u64,
-) -> (Vec<&'a LabeledImage>, Vec<&'a LabeledImage>) {
+fn split(all: &[LabeledImage], fraction: f32, seed: u64) -> (Vec<&LabeledImage>, Vec<&LabeledImage>) {
     let mut order: Vec<usize> = (0..all.len()).collect();
     order.shuffle(&mut ChaCha8Rng::seed_from_u64(mix(seed, 0x5417)));
     let n_val = (all.len() as f32 * fraction).round() as usize;
@@ -136,20 +117,31 @@ fn split<'a>(
     (train, valid)
 }
 
-/// Trains into `run`. With `resume`, continues the run found there.
+/// Trains into `run`: a new run from `config`, or, with `None`, the run
+/// found there continued from its last completed epoch.
 pub fn train(config: Option<TrainConfig>, run: &Path, show_progress: bool) -> Result<TrainSummary> {
+    train_until(config, run, show_progress, None).map(|s| s.expect("runs to the end without a stop"))
+}
+
+/// Like [`train`], but stops after `stop_after` epochs as an interruption
+/// would (no final evaluation), returning `None` then.
+pub fn train_until(
+    config: Option<TrainConfig>,
+    run: &Path,
+    show_progress: bool,
+    stop_after: Option<usize>,
+) -> Result<Option<TrainSummary>> {
     let resume_dir = run.join(RESUME_DIR);
     let (config, state) = match config {
         Some(c) => {
-            c.validate()
-                .map_err(|m| anyhow::anyhow!("invalid settings: {m}"))?;
+            c.validate().map_err(|m| anyhow::anyhow!("invalid settings: {m}"))?;
             (c, None)
         }
         None => {
             let path = run.join(CONFIG_FILE);
             let text = datasets::atomic::read_text(&path).context("nothing to resume")?;
-            let c: TrainConfig = serde_json::from_str(&text)
-                .with_context(|| format!("{}: invalid settings", path.display()))?;
+            let c: TrainConfig =
+                serde_json::from_str(&text).with_context(|| format!("{}: invalid settings", path.display()))?;
             let state_path = resume_dir.join(STATE_FILE);
             let state = if state_path.is_file() {
                 let text = datasets::atomic::read_text(&state_path)?;
@@ -170,10 +162,7 @@ pub fn train(config: Option<TrainConfig>, run: &Path, show_progress: bool) -> Re
     let test_json = config.data.join("test.json");
     for p in [&train_json, &test_json] {
         if !p.is_file() {
-            bail!(
-                "{}: missing (--data must be a datagen detection folder with train.json and test.json)",
-                p.display()
-            );
+            bail!("{}: missing (--data must be a datagen detection folder with train.json and test.json)", p.display());
         }
     }
     let all = load_coco_set(&train_json, &det.preprocess)?;
@@ -184,21 +173,16 @@ pub fn train(config: Option<TrainConfig>, run: &Path, show_progress: bool) -> Re
     let (train_set, valid_set) = split(&all, config.val_fraction, config.seed);
     datasets::atomic::write_json(&run.join(CONFIG_FILE), &config)?;
 
+    // Flex keeps one global RNG: seed it before the weights are drawn.
+    device.seed(config.seed);
     let mut network = Network::new(det, &device);
     let mut optim = optimizer(&config);
     let (mut epochs_done, mut elapsed, mut csv) = (0, 0.0, csv_header(det.backbone));
     if let Some(s) = state {
-        network = checkpoint::load_weights(&resume_dir, det, &device)
-            .context("loading the resume weights")?;
-        optim = optim
-            .load(resume_dir.join(format!("{OPTIMIZER_STEM}.bpk")))
-            .context("loading the optimizer state")?;
+        network = checkpoint::load_weights(&resume_dir, det, &device).context("loading the resume weights")?;
+        optim = optim.load(resume_dir.join(format!("{OPTIMIZER_STEM}.bpk"))).context("loading the optimizer state")?;
         (epochs_done, elapsed, csv) = (s.epochs_done, s.elapsed_s, s.csv);
-        eprintln!(
-            "resuming {} after epoch {epochs_done} of {}",
-            run.display(),
-            config.epochs
-        );
+        eprintln!("resuming {} after epoch {epochs_done} of {}", run.display(), config.epochs);
     }
 
     let per_epoch = train_set.len().div_ceil(config.batch_size);
@@ -212,11 +196,7 @@ pub fn train(config: Option<TrainConfig>, run: &Path, show_progress: bool) -> Re
         let mut rng = ChaCha8Rng::seed_from_u64(mix(config.seed, 1000 + epoch as u64));
         let mut order: Vec<usize> = (0..train_set.len()).collect();
         order.shuffle(&mut rng);
-        let bar = if show_progress {
-            ProgressBar::new(per_epoch as u64)
-        } else {
-            ProgressBar::hidden()
-        };
+        let bar = if show_progress { ProgressBar::new(per_epoch as u64) } else { ProgressBar::hidden() };
         bar.set_style(
             ProgressStyle::with_template("epoch {prefix} [{bar:30}] {pos}/{len} {msg} ({eta})")
                 .expect("template")
@@ -227,10 +207,7 @@ pub fn train(config: Option<TrainConfig>, run: &Path, show_progress: bool) -> Re
         for (k, chunk) in order.chunks(config.batch_size).enumerate() {
             let iteration = epoch * per_epoch + k;
             let images: Vec<&LabeledImage> = chunk.iter().map(|&i| train_set[i]).collect();
-            let flips: Vec<bool> = images
-                .iter()
-                .map(|_| config.augment && crate::targets::coin(&mut rng))
-                .collect();
+            let flips: Vec<bool> = images.iter().map(|_| config.augment && crate::targets::coin(&mut rng)).collect();
             let batch = make_batch(&images, &flips, size, &device);
             let losses = batch_losses(&network, det, &batch, &mut rng);
             let values: Vec<f64> = std::iter::once(&losses.total)
@@ -238,11 +215,7 @@ pub fn train(config: Option<TrainConfig>, run: &Path, show_progress: bool) -> Re
                 .map(|t| infer::host(t.clone())[0] as f64)
                 .collect();
             if !values[0].is_finite() {
-                bail!(
-                    "the loss became {} at epoch {} iteration {iteration}: lower --lr",
-                    values[0],
-                    epoch + 1
-                );
+                bail!("the loss became {} at epoch {} iteration {iteration}: lower --lr", values[0], epoch + 1);
             }
             let lr = config.lr_at(iteration, total);
             network = apply(network, &mut optim, lr, losses.total.backward());
@@ -250,12 +223,7 @@ pub fn train(config: Option<TrainConfig>, run: &Path, show_progress: bool) -> Re
                 *s += v;
             }
             let now = elapsed + started.elapsed().as_secs_f64();
-            let _ = writeln!(
-                csv,
-                "train,{},{iteration},{}",
-                epoch + 1,
-                row(&values, lr, now)
-            );
+            let _ = writeln!(csv, "train,{},{iteration},{}", epoch + 1, row(&values, lr, now));
             bar.set_message(format!("loss {:.4}", values[0]));
             bar.inc(1);
         }
@@ -266,21 +234,11 @@ pub fn train(config: Option<TrainConfig>, run: &Path, show_progress: bool) -> Re
         let end_iteration = (epoch + 1) * per_epoch - 1;
         elapsed += started.elapsed().as_secs_f64();
         let lr = config.lr_at(end_iteration, total);
-        let _ = writeln!(
-            csv,
-            "train_epoch,{},{end_iteration},{}",
-            epoch + 1,
-            row(&means, lr, elapsed)
-        );
+        let _ = writeln!(csv, "train_epoch,{},{end_iteration},{}", epoch + 1, row(&means, lr, elapsed));
         if !valid_set.is_empty() {
             let v = validation_loss(&network, &config, &valid_set, &inner);
             last_valid = Some(v[0]);
-            let _ = writeln!(
-                csv,
-                "valid_epoch,{},{end_iteration},{}",
-                epoch + 1,
-                row(&v, lr, elapsed)
-            );
+            let _ = writeln!(csv, "valid_epoch,{},{end_iteration},{}", epoch + 1, row(&v, lr, elapsed));
         }
         if show_progress {
             eprintln!(
@@ -288,9 +246,7 @@ pub fn train(config: Option<TrainConfig>, run: &Path, show_progress: bool) -> Re
                 epoch + 1,
                 config.epochs,
                 last_train,
-                last_valid
-                    .map(|v| format!(", valid loss {v:.4}"))
-                    .unwrap_or_default(),
+                last_valid.map(|v| format!(", valid loss {v:.4}")).unwrap_or_default(),
                 elapsed
             );
         }
@@ -299,14 +255,13 @@ pub fn train(config: Option<TrainConfig>, run: &Path, show_progress: bool) -> Re
             &resume_dir,
             &network,
             &optim,
-            &ResumeState {
-                epochs_done: epoch + 1,
-                elapsed_s: elapsed,
-                csv: csv.clone(),
-            },
+            &ResumeState { epochs_done: epoch + 1, elapsed_s: elapsed, csv: csv.clone() },
         )?;
         let meta = meta_for(&config, &network, epoch + 1, elapsed, None);
         checkpoint::save(&run.join(CHECKPOINT_DIR), det, &network, &meta)?;
+        if stop_after == Some(epoch + 1) {
+            return Ok(None);
+        }
     }
 
     // Final evaluation on the test split.
@@ -314,32 +269,18 @@ pub fn train(config: Option<TrainConfig>, run: &Path, show_progress: bool) -> Re
     let detector = Detector::from_network(det.clone(), meta.clone(), &network, inner.clone());
     let metrics = eval::evaluate_set(&detector, &test, config.batch_size);
     datasets::atomic::write_json(&run.join(METRICS_FILE), &metrics)?;
-    let meta = CheckpointMeta {
-        metrics: Some(metrics.clone()),
-        ..meta
-    };
+    let meta = CheckpointMeta { metrics: Some(metrics.clone()), ..meta };
     checkpoint::save(&run.join(CHECKPOINT_DIR), det, &network, &meta)?;
     if last_train.is_nan() {
         // Resumed after the last epoch: report the logged final losses.
         last_train = final_value(&csv, "train_epoch").unwrap_or(f64::NAN);
         last_valid = final_value(&csv, "valid_epoch");
     }
-    Ok(TrainSummary {
-        metrics,
-        final_train_loss: last_train,
-        final_valid_loss: last_valid,
-        seconds: elapsed,
-    })
+    Ok(Some(TrainSummary { metrics, final_train_loss: last_train, final_valid_loss: last_valid, seconds: elapsed }))
 }
 
 fn final_value(csv: &str, kind: &str) -> Option<f64> {
-    csv.lines()
-        .filter(|l| l.starts_with(&format!("{kind},")))
-        .last()?
-        .split(',')
-        .nth(3)?
-        .parse()
-        .ok()
+    csv.lines().rfind(|l| l.starts_with(&format!("{kind},")))?.split(',').nth(3)?.parse().ok()
 }
 
 fn row(values: &[f64], lr: f64, elapsed: f64) -> String {
@@ -370,12 +311,7 @@ fn meta_for(
 
 /// Mean loss over the validation images, without dropout or gradients and
 /// with a fixed sampling seed, so epochs compare.
-fn validation_loss(
-    network: &Network,
-    config: &TrainConfig,
-    valid: &[&LabeledImage],
-    device: &Device,
-) -> Vec<f64> {
+fn validation_loss(network: &Network, config: &TrainConfig, valid: &[&LabeledImage], device: &Device) -> Vec<f64> {
     let model = network.valid();
     let mut rng = ChaCha8Rng::seed_from_u64(mix(config.seed, 0xda7a));
     let mut sums = [0.0f64; 5];
@@ -384,10 +320,7 @@ fn validation_loss(
         let flips = vec![false; chunk.len()];
         let batch = make_batch(chunk, &flips, config.detector.preprocess.size, device);
         let losses = batch_losses(&model, &config.detector, &batch, &mut rng);
-        for (s, t) in sums
-            .iter_mut()
-            .zip(std::iter::once(&losses.total).chain(losses.parts.iter().map(|(_, t)| t)))
-        {
+        for (s, t) in sums.iter_mut().zip(std::iter::once(&losses.total).chain(losses.parts.iter().map(|(_, t)| t))) {
             *s += infer::host(t.clone())[0] as f64;
         }
         batches += 1;
@@ -396,20 +329,11 @@ fn validation_loss(
 }
 
 /// Writes the resume state atomically (a new folder renamed into place).
-fn save_resume(
-    dir: &Path,
-    network: &Network,
-    optim: &ModuleOptimizer,
-    state: &ResumeState,
-) -> Result<()> {
+fn save_resume(dir: &Path, network: &Network, optim: &ModuleOptimizer, state: &ResumeState) -> Result<()> {
     let parent = dir.parent().unwrap_or(Path::new("."));
-    let tmp = tempfile::Builder::new()
-        .prefix(".tmp-resume-")
-        .tempdir_in(parent)?;
+    let tmp = tempfile::Builder::new().prefix(".tmp-resume-").tempdir_in(parent)?;
     save_network(network, &tmp.path().join(checkpoint::WEIGHTS_STEM))?;
-    optim
-        .save(tmp.path().join(OPTIMIZER_STEM))
-        .context("writing the optimizer state")?;
+    optim.save(tmp.path().join(OPTIMIZER_STEM)).context("writing the optimizer state")?;
     datasets::atomic::write_json(&tmp.path().join(STATE_FILE), state)?;
     let kept: PathBuf = tmp.keep();
     if dir.exists() {

@@ -5,10 +5,7 @@ use std::process::{Command, ExitCode};
 
 fn run(args: &[&str]) -> bool {
     eprintln!("$ cargo {}", args.join(" "));
-    Command::new(env!("CARGO"))
-        .args(args)
-        .status()
-        .is_ok_and(|s| s.success())
+    Command::new(env!("CARGO")).args(args).status().is_ok_and(|s| s.success())
 }
 
 fn main() -> ExitCode {
@@ -16,20 +13,9 @@ fn main() -> ExitCode {
     match task.as_deref() {
         Some("ci") => {
             let ok = run(&["fmt", "--all", "--", "--check"])
-                && run(&[
-                    "clippy",
-                    "--workspace",
-                    "--all-targets",
-                    "--",
-                    "-D",
-                    "warnings",
-                ])
+                && run(&["clippy", "--workspace", "--all-targets", "--", "-D", "warnings"])
                 && run(&["test", "--workspace"]);
-            if ok {
-                ExitCode::SUCCESS
-            } else {
-                ExitCode::FAILURE
-            }
+            if ok { ExitCode::SUCCESS } else { ExitCode::FAILURE }
         }
         _ => {
             eprintln!("usage: cargo xtask ci   (fmt check, clippy -D warnings, tests)");

@@ -44,8 +44,7 @@ fn main() -> Result<()> {
     let args = Args::parse();
     let mut config = match &args.config {
         Some(path) => {
-            let text = std::fs::read_to_string(path)
-                .with_context(|| format!("reading {}", path.display()))?;
+            let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
             serde_json::from_str::<DatagenConfig>(&text)
                 .with_context(|| format!("{}: invalid settings", path.display()))?
         }

@@ -47,12 +47,13 @@ impl Calibration {
 pub fn read_calibration(path: &Path) -> Result<Calibration> {
     let text = crate::atomic::read_text(path)?;
     let file: CalibFile = serde_json::from_str(&text).map_err(|e| DataError::json(path, e))?;
-    file.camera
-        .validate()
-        .map_err(|m| DataError::invalid(path, format!("camera: {m}")))?;
+    file.camera.validate().map_err(|m| DataError::invalid(path, format!("camera: {m}")))?;
     let pose = |rows: &RowsMat4, name: &str| {
         pose_from_rows(rows).ok_or_else(|| {
-            DataError::invalid(path, format!("{name} is not a rigid transform (finite, orthonormal rotation, last row 0 0 0 1)"))
+            DataError::invalid(
+                path,
+                format!("{name} is not a rigid transform (finite, orthonormal rotation, last row 0 0 0 1)"),
+            )
         })
     };
     Ok(Calibration {

@@ -22,12 +22,7 @@ pub struct PointCloud {
 
 impl PointCloud {
     pub fn new(points: Vec<Point3<f32>>, intensity: Option<Vec<f32>>) -> Self {
-        Self {
-            points,
-            intensity,
-            viewpoint: Pose3::identity(),
-            dropped_non_finite: 0,
-        }
+        Self { points, intensity, viewpoint: Pose3::identity(), dropped_non_finite: 0 }
     }
     pub fn len(&self) -> usize {
         self.points.len()
@@ -76,10 +71,9 @@ impl<'a> CloudBuilder<'a> {
                     self.dropped += 1;
                     Ok(())
                 }
-                NonFinite::Reject => Err(DataError::invalid(
-                    self.path,
-                    format!("point {index} has a non-finite coordinate {xyz:?}"),
-                )),
+                NonFinite::Reject => {
+                    Err(DataError::invalid(self.path, format!("point {index} has a non-finite coordinate {xyz:?}")))
+                }
             };
         }
         self.points.push(Point3::from(xyz));
@@ -90,29 +84,18 @@ impl<'a> CloudBuilder<'a> {
     }
 
     pub fn finish(self, viewpoint: Pose3) -> PointCloud {
-        PointCloud {
-            points: self.points,
-            intensity: self.intensity,
-            viewpoint,
-            dropped_non_finite: self.dropped,
-        }
+        PointCloud { points: self.points, intensity: self.intensity, viewpoint, dropped_non_finite: self.dropped }
     }
 }
 
 /// Loads a cloud by extension: `.pcd`, `.ply`, or KITTI `.bin`.
 pub fn read_cloud(path: &Path, policy: NonFinite) -> Result<PointCloud> {
-    let ext = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase);
+    let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
     match ext.as_deref() {
         Some("pcd") => super::pcd::read_pcd(path, policy),
         Some("ply") => super::ply::read_ply(path, policy),
         Some("bin") => read_kitti_bin(path, policy),
-        _ => Err(DataError::invalid(
-            path,
-            "unknown point cloud extension (expected .pcd, .ply or .bin)",
-        )),
+        _ => Err(DataError::invalid(path, "unknown point cloud extension (expected .pcd, .ply or .bin)")),
     }
 }
 
@@ -123,10 +106,7 @@ pub fn read_kitti_bin(path: &Path, policy: NonFinite) -> Result<PointCloud> {
         return Err(DataError::byte(
             path,
             (bytes.len() - bytes.len() % 16) as u64,
-            format!(
-                "file size {} is not a multiple of 16 bytes (x y z i float32 records)",
-                bytes.len()
-            ),
+            format!("file size {} is not a multiple of 16 bytes (x y z i float32 records)", bytes.len()),
         ));
     }
     let n = bytes.len() / 16;

@@ -62,9 +62,7 @@ impl CocoAnnotation {
 impl CocoDataset {
     /// The annotations of one image.
     pub fn annotations_of(&self, image_id: u64) -> impl Iterator<Item = &CocoAnnotation> {
-        self.annotations
-            .iter()
-            .filter(move |a| a.image_id == image_id)
+        self.annotations.iter().filter(move |a| a.image_id == image_id)
     }
 
     /// Checks ids and boxes; the message names the first offending entry.
@@ -82,23 +80,14 @@ impl CocoDataset {
                 return Err(format!("duplicate annotation id {}", a.id));
             }
             if !images.contains(&a.image_id) {
-                return Err(format!(
-                    "annotation {} refers to unknown image {}",
-                    a.id, a.image_id
-                ));
+                return Err(format!("annotation {} refers to unknown image {}", a.id, a.image_id));
             }
             if !categories.contains(&a.category_id) {
-                return Err(format!(
-                    "annotation {} refers to unknown category {}",
-                    a.id, a.category_id
-                ));
+                return Err(format!("annotation {} refers to unknown category {}", a.id, a.category_id));
             }
             let [_, _, w, h] = a.bbox;
             if !a.bbox().is_finite() || w < 0.0 || h < 0.0 {
-                return Err(format!(
-                    "annotation {} has an invalid bbox {:?}",
-                    a.id, a.bbox
-                ));
+                return Err(format!("annotation {} has an invalid bbox {:?}", a.id, a.bbox));
             }
         }
         Ok(())

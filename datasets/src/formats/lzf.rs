@@ -24,16 +24,10 @@ pub fn decompress(input: &[u8], expected_len: usize) -> Result<Vec<u8>, LzfError
         if ctrl < 32 {
             let run = ctrl + 1;
             if i + run > input.len() {
-                return Err(LzfError {
-                    offset: at,
-                    message: "literal run past the end of the data",
-                });
+                return Err(LzfError { offset: at, message: "literal run past the end of the data" });
             }
             if out.len() + run > expected_len {
-                return Err(LzfError {
-                    offset: at,
-                    message: "output longer than declared",
-                });
+                return Err(LzfError { offset: at, message: "output longer than declared" });
             }
             out.extend_from_slice(&input[i..i + run]);
             i += run;
@@ -41,34 +35,22 @@ pub fn decompress(input: &[u8], expected_len: usize) -> Result<Vec<u8>, LzfError
             let mut len = ctrl >> 5;
             if len == 7 {
                 let Some(&extra) = input.get(i) else {
-                    return Err(LzfError {
-                        offset: at,
-                        message: "truncated back-reference",
-                    });
+                    return Err(LzfError { offset: at, message: "truncated back-reference" });
                 };
                 len += extra as usize;
                 i += 1;
             }
             let Some(&low) = input.get(i) else {
-                return Err(LzfError {
-                    offset: at,
-                    message: "truncated back-reference",
-                });
+                return Err(LzfError { offset: at, message: "truncated back-reference" });
             };
             i += 1;
             let back = ((ctrl & 0x1f) << 8) + low as usize + 1;
             if back > out.len() {
-                return Err(LzfError {
-                    offset: at,
-                    message: "back-reference before the start of the output",
-                });
+                return Err(LzfError { offset: at, message: "back-reference before the start of the output" });
             }
             let len = len + 2;
             if out.len() + len > expected_len {
-                return Err(LzfError {
-                    offset: at,
-                    message: "output longer than declared",
-                });
+                return Err(LzfError { offset: at, message: "output longer than declared" });
             }
             let start = out.len() - back;
             // Byte by byte: a reference may overlap the bytes it produces.
@@ -78,10 +60,7 @@ pub fn decompress(input: &[u8], expected_len: usize) -> Result<Vec<u8>, LzfError
         }
     }
     if out.len() != expected_len {
-        return Err(LzfError {
-            offset: input.len(),
-            message: "output shorter than declared",
-        });
+        return Err(LzfError { offset: input.len(), message: "output shorter than declared" });
     }
     Ok(out)
 }
@@ -98,8 +77,7 @@ pub fn compress(input: &[u8]) -> Vec<u8> {
     let mut literal_start = 0;
     let mut i = 0;
     while i + 2 < input.len() {
-        let key =
-            u32::from(input[i]) << 16 | u32::from(input[i + 1]) << 8 | u32::from(input[i + 2]);
+        let key = u32::from(input[i]) << 16 | u32::from(input[i + 1]) << 8 | u32::from(input[i + 2]);
         let slot = (key.wrapping_mul(2_654_435_761) >> (32 - HASH_BITS)) as usize;
         let candidate = table[slot];
         table[slot] = i;
@@ -177,10 +155,7 @@ mod tests {
         let err = decompress(&[5, b'a'], 6).unwrap_err();
         assert_eq!(err.offset, 0);
         let err = decompress(&[0, b'a', (1 << 5), 9], 4).unwrap_err();
-        assert_eq!(
-            (err.offset, err.message),
-            (2, "back-reference before the start of the output")
-        );
+        assert_eq!((err.offset, err.message), (2, "back-reference before the start of the output"));
         assert!(decompress(&[1, b'a', b'b'], 3).is_err());
     }
 }

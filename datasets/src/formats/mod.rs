@@ -15,7 +15,5 @@ pub use cloud::{NonFinite, PointCloud, read_cloud};
 pub use coco::{CocoAnnotation, CocoCategory, CocoDataset, CocoImage, read_coco, write_coco};
 pub use pcd::{PcdData, read_pcd, write_pcd};
 pub use ply::{PlyFormat, read_ply, write_ply};
-pub use sensor_csv::{
-    ImuSample, OdometrySample, read_imu, read_odometry, write_imu, write_odometry,
-};
+pub use sensor_csv::{ImuSample, OdometrySample, read_imu, read_odometry, write_imu, write_odometry};
 pub use trajectory::{Trajectory, TrajectoryFormat, read_trajectory, read_tum, write_tum};

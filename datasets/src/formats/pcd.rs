@@ -74,9 +74,7 @@ impl Header {
         self.fields.iter().map(Field::bytes).sum()
     }
     fn field(&self, names: &[&str]) -> Option<usize> {
-        self.fields
-            .iter()
-            .position(|f| names.contains(&f.name.as_str()))
+        self.fields.iter().position(|f| names.contains(&f.name.as_str()))
     }
 }
 
@@ -92,16 +90,9 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header> {
     loop {
         line_no += 1;
         if pos >= bytes.len() {
-            return Err(DataError::line(
-                path,
-                line_no,
-                "header ended without a DATA line",
-            ));
+            return Err(DataError::line(path, line_no, "header ended without a DATA line"));
         }
-        let end = bytes[pos..]
-            .iter()
-            .position(|&b| b == b'\n')
-            .map_or(bytes.len(), |k| pos + k);
+        let end = bytes[pos..].iter().position(|&b| b == b'\n').map_or(bytes.len(), |k| pos + k);
         let line = std::str::from_utf8(&bytes[pos..end])
             .map_err(|_| DataError::line(path, line_no, "header line is not text"))?
             .trim();
@@ -114,12 +105,7 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header> {
         let rest: Vec<&str> = words.collect();
         let bad = |what: &str| DataError::line(path, line_no, format!("bad {key} line: {what}"));
         let numbers = |rest: &[&str]| -> Result<Vec<usize>> {
-            rest.iter()
-                .map(|w| {
-                    w.parse::<usize>()
-                        .map_err(|_| bad(&format!("`{w}` is not a count")))
-                })
-                .collect()
+            rest.iter().map(|w| w.parse::<usize>().map_err(|_| bad(&format!("`{w}` is not a count")))).collect()
         };
         match key.as_str() {
             "VERSION" => {}
@@ -141,10 +127,7 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header> {
             "VIEWPOINT" => {
                 let v: Vec<f64> = rest
                     .iter()
-                    .map(|w| {
-                        w.parse::<f64>()
-                            .map_err(|_| bad(&format!("`{w}` is not a number")))
-                    })
+                    .map(|w| w.parse::<f64>().map_err(|_| bad(&format!("`{w}` is not a number"))))
                     .collect::<Result<_>>()?;
                 if v.len() != 7 || v.iter().any(|x| !x.is_finite()) {
                     return Err(bad("expected 7 finite numbers: tx ty tz qw qx qy qz"));
@@ -153,10 +136,7 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header> {
                 if q.norm() < 1e-9 {
                     return Err(bad("zero quaternion"));
                 }
-                viewpoint = Pose3::from_parts(
-                    Translation3::new(v[0], v[1], v[2]),
-                    UnitQuaternion::from_quaternion(q),
-                );
+                viewpoint = Pose3::from_parts(Translation3::new(v[0], v[1], v[2]), UnitQuaternion::from_quaternion(q));
             }
             "DATA" => {
                 let data = match rest.first().copied() {
@@ -223,28 +203,13 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header> {
                     (Some(p), _) => p,
                     (None, Some(s)) => s,
                     (None, None) => {
-                        return Err(DataError::line(
-                            path,
-                            line_no,
-                            "neither POINTS nor WIDTH/HEIGHT given",
-                        ));
+                        return Err(DataError::line(path, line_no, "neither POINTS nor WIDTH/HEIGHT given"));
                     }
                 };
-                return Ok(Header {
-                    fields,
-                    points,
-                    viewpoint,
-                    data,
-                    data_start: pos,
-                    data_line: line_no,
-                });
+                return Ok(Header { fields, points, viewpoint, data, data_start: pos, data_line: line_no });
             }
             _ => {
-                return Err(DataError::line(
-                    path,
-                    line_no,
-                    format!("unknown header keyword `{key}`"),
-                ));
+                return Err(DataError::line(path, line_no, format!("unknown header keyword `{key}`")));
             }
         }
     }
@@ -271,11 +236,7 @@ pub fn read_pcd_bytes(path: &Path, bytes: &[u8], policy: NonFinite) -> Result<Po
     match header.data {
         PcdData::Ascii => {
             let text = std::str::from_utf8(data).map_err(|e| {
-                DataError::byte(
-                    path,
-                    (header.data_start + e.valid_up_to()) as u64,
-                    "ascii data is not text",
-                )
+                DataError::byte(path, (header.data_start + e.valid_up_to()) as u64, "ascii data is not text")
             })?;
             // Token index of each field's first element within a line.
             let mut token_of = Vec::with_capacity(header.fields.len());
@@ -307,9 +268,8 @@ pub fn read_pcd_bytes(path: &Path, bytes: &[u8], policy: NonFinite) -> Result<Po
                 }
                 let value = |field: usize| -> Result<f32> {
                     let w = words[token_of[field]];
-                    parse_ascii_number(w).ok_or_else(|| {
-                        DataError::line(path, line_no, format!("`{w}` is not a number"))
-                    })
+                    parse_ascii_number(w)
+                        .ok_or_else(|| DataError::line(path, line_no, format!("`{w}` is not a number")))
                 };
                 let intensity = match ii {
                     Some(i) => value(i)?,
@@ -319,10 +279,7 @@ pub fn read_pcd_bytes(path: &Path, bytes: &[u8], policy: NonFinite) -> Result<Po
                 index += 1;
             }
             if index != n {
-                return Err(DataError::invalid(
-                    path,
-                    format!("header declares {n} points but the data has {index}"),
-                ));
+                return Err(DataError::invalid(path, format!("header declares {n} points but the data has {index}")));
             }
         }
         PcdData::Binary => {
@@ -347,11 +304,7 @@ pub fn read_pcd_bytes(path: &Path, bytes: &[u8], policy: NonFinite) -> Result<Po
         PcdData::BinaryCompressed => {
             let at = header.data_start as u64;
             if data.len() < 8 {
-                return Err(DataError::byte(
-                    path,
-                    at,
-                    "missing the compressed/uncompressed size words",
-                ));
+                return Err(DataError::byte(path, at, "missing the compressed/uncompressed size words"));
             }
             let packed = u32::from_le_bytes(data[0..4].try_into().expect("4 bytes")) as usize;
             let unpacked = u32::from_le_bytes(data[4..8].try_into().expect("4 bytes")) as usize;
@@ -359,28 +312,18 @@ pub fn read_pcd_bytes(path: &Path, bytes: &[u8], policy: NonFinite) -> Result<Po
                 return Err(DataError::byte(
                     path,
                     bytes.len() as u64,
-                    format!(
-                        "compressed block of {packed} bytes is truncated ({} present)",
-                        data.len() - 8
-                    ),
+                    format!("compressed block of {packed} bytes is truncated ({} present)", data.len() - 8),
                 ));
             }
             if unpacked != n * record {
                 return Err(DataError::byte(
                     path,
                     at + 4,
-                    format!(
-                        "uncompressed size {unpacked} does not match {n} points of {record} bytes"
-                    ),
+                    format!("uncompressed size {unpacked} does not match {n} points of {record} bytes"),
                 ));
             }
-            let raw = lzf::decompress(&data[8..8 + packed], unpacked).map_err(|e| {
-                DataError::byte(
-                    path,
-                    at + 8 + e.offset as u64,
-                    format!("LZF: {}", e.message),
-                )
-            })?;
+            let raw = lzf::decompress(&data[8..8 + packed], unpacked)
+                .map_err(|e| DataError::byte(path, at + 8 + e.offset as u64, format!("LZF: {}", e.message)))?;
             // Fields are stored one after another: all x, then all y, ...
             let f = &header.fields;
             let get = |k: usize, i: usize| {
@@ -388,11 +331,7 @@ pub fn read_pcd_bytes(path: &Path, bytes: &[u8], policy: NonFinite) -> Result<Po
                 f[k].decode(&raw[start..]) as f32
             };
             for i in 0..n {
-                cloud.push(
-                    i,
-                    [get(ix, i), get(iy, i), get(iz, i)],
-                    ii.map_or(0.0, |k| get(k, i)),
-                )?;
+                cloud.push(i, [get(ix, i), get(iy, i), get(iz, i)], ii.map_or(0.0, |k| get(k, i)))?;
             }
         }
     }

@@ -55,11 +55,7 @@ impl Scalar {
         macro_rules! num {
             ($t:ty, $n:expr) => {{
                 let a: [u8; $n] = b[..$n].try_into().expect("sized slice");
-                (if little {
-                    <$t>::from_le_bytes(a)
-                } else {
-                    <$t>::from_be_bytes(a)
-                }) as f64
+                (if little { <$t>::from_le_bytes(a) } else { <$t>::from_be_bytes(a) }) as f64
             }};
         }
         match self {
@@ -103,16 +99,9 @@ pub fn read_ply_bytes(path: &Path, bytes: &[u8], policy: NonFinite) -> Result<Po
     let mut next_line = |pos: &mut usize| -> Result<(usize, String)> {
         line_no += 1;
         if *pos >= bytes.len() {
-            return Err(DataError::line(
-                path,
-                line_no,
-                "header ended without `end_header`",
-            ));
+            return Err(DataError::line(path, line_no, "header ended without `end_header`"));
         }
-        let end = bytes[*pos..]
-            .iter()
-            .position(|&b| b == b'\n')
-            .map_or(bytes.len(), |k| *pos + k);
+        let end = bytes[*pos..].iter().position(|&b| b == b'\n').map_or(bytes.len(), |k| *pos + k);
         let text = std::str::from_utf8(&bytes[*pos..end])
             .map_err(|_| DataError::line(path, line_no, "header line is not text"))?
             .trim()
@@ -122,11 +111,7 @@ pub fn read_ply_bytes(path: &Path, bytes: &[u8], policy: NonFinite) -> Result<Po
     };
     let (_, magic) = next_line(&mut pos)?;
     if magic != "ply" {
-        return Err(DataError::line(
-            path,
-            1,
-            "not a PLY file (first line is not `ply`)",
-        ));
+        return Err(DataError::line(path, 1, "not a PLY file (first line is not `ply`)"));
     }
     loop {
         let (no, line) = next_line(&mut pos)?;
@@ -143,38 +128,21 @@ pub fn read_ply_bytes(path: &Path, bytes: &[u8], policy: NonFinite) -> Result<Po
                 })
             }
             Some("element") => {
-                let (Some(name), Some(count)) =
-                    (words.get(1), words.get(2).and_then(|c| c.parse().ok()))
-                else {
+                let (Some(name), Some(count)) = (words.get(1), words.get(2).and_then(|c| c.parse().ok())) else {
                     return Err(bad("expected `element NAME COUNT`".into()));
                 };
-                elements.push(Element {
-                    name: name.to_string(),
-                    count,
-                    properties: Vec::new(),
-                });
+                elements.push(Element { name: name.to_string(), count, properties: Vec::new() });
             }
             Some("property") => {
-                let element = elements
-                    .last_mut()
-                    .ok_or_else(|| bad("property before any element".into()))?;
+                let element = elements.last_mut().ok_or_else(|| bad("property before any element".into()))?;
                 let scalar = |w: Option<&&str>| {
-                    w.and_then(|w| Scalar::parse(w))
-                        .ok_or_else(|| bad(format!("unknown property type in `{line}`")))
+                    w.and_then(|w| Scalar::parse(w)).ok_or_else(|| bad(format!("unknown property type in `{line}`")))
                 };
                 let property = if words.get(1) == Some(&"list") {
-                    Property::List {
-                        count: scalar(words.get(2))?,
-                        item: scalar(words.get(3))?,
-                    }
+                    Property::List { count: scalar(words.get(2))?, item: scalar(words.get(3))? }
                 } else {
-                    let name = words
-                        .get(2)
-                        .ok_or_else(|| bad("property without a name".into()))?;
-                    Property::Scalar {
-                        name: name.to_string(),
-                        kind: scalar(words.get(1))?,
-                    }
+                    let name = words.get(2).ok_or_else(|| bad("property without a name".into()))?;
+                    Property::Scalar { name: name.to_string(), kind: scalar(words.get(1))? }
                 };
                 element.properties.push(property);
             }
@@ -183,19 +151,18 @@ pub fn read_ply_bytes(path: &Path, bytes: &[u8], policy: NonFinite) -> Result<Po
         }
     }
     let header_lines = line_no;
-    let format =
-        format.ok_or_else(|| DataError::invalid(path, "no `format` line in the header"))?;
+    let format = format.ok_or_else(|| DataError::invalid(path, "no `format` line in the header"))?;
     let vertex_index = elements
         .iter()
         .position(|e| e.name == "vertex")
         .ok_or_else(|| DataError::invalid(path, "no `vertex` element"))?;
     let find = |names: &[&str]| {
-        elements[vertex_index].properties.iter().position(
-            |p| matches!(p, Property::Scalar { name, .. } if names.contains(&name.as_str())),
-        )
+        elements[vertex_index]
+            .properties
+            .iter()
+            .position(|p| matches!(p, Property::Scalar { name, .. } if names.contains(&name.as_str())))
     };
-    let missing =
-        |axis: &str| DataError::invalid(path, format!("vertex element has no `{axis}` property"));
+    let missing = |axis: &str| DataError::invalid(path, format!("vertex element has no `{axis}` property"));
     let ix = find(&["x"]).ok_or_else(|| missing("x"))?;
     let iy = find(&["y"]).ok_or_else(|| missing("y"))?;
     let iz = find(&["z"]).ok_or_else(|| missing("z"))?;
@@ -205,31 +172,18 @@ pub fn read_ply_bytes(path: &Path, bytes: &[u8], policy: NonFinite) -> Result<Po
 
     match format {
         PlyFormat::Ascii => {
-            let text = std::str::from_utf8(&bytes[pos..]).map_err(|e| {
-                DataError::byte(
-                    path,
-                    (pos + e.valid_up_to()) as u64,
-                    "ascii body is not text",
-                )
-            })?;
-            let mut lines = text
-                .lines()
-                .enumerate()
-                .map(|(k, l)| (header_lines + 1 + k, l));
+            let text = std::str::from_utf8(&bytes[pos..])
+                .map_err(|e| DataError::byte(path, (pos + e.valid_up_to()) as u64, "ascii body is not text"))?;
+            let mut lines = text.lines().enumerate().map(|(k, l)| (header_lines + 1 + k, l));
             for (e_index, element) in elements.iter().enumerate() {
                 for item in 0..element.count {
                     let (no, line) = lines.next().ok_or_else(|| {
-                        DataError::invalid(
-                            path,
-                            format!("file ends inside element `{}` (item {item})", element.name),
-                        )
+                        DataError::invalid(path, format!("file ends inside element `{}` (item {item})", element.name))
                     })?;
                     let values: Vec<f64> = line
                         .split_whitespace()
                         .map(|w| {
-                            w.parse::<f64>().map_err(|_| {
-                                DataError::line(path, no, format!("`{w}` is not a number"))
-                            })
+                            w.parse::<f64>().map_err(|_| DataError::line(path, no, format!("`{w}` is not a number")))
                         })
                         .collect::<Result<_>>()?;
                     if e_index != vertex_index {
@@ -242,11 +196,7 @@ pub fn read_ply_bytes(path: &Path, bytes: &[u8], policy: NonFinite) -> Result<Po
                         match p {
                             Property::Scalar { .. } => {
                                 scalar_values.push(*values.get(at).ok_or_else(|| {
-                                    DataError::line(
-                                        path,
-                                        no,
-                                        format!("expected more values, found {}", values.len()),
-                                    )
+                                    DataError::line(path, no, format!("expected more values, found {}", values.len()))
                                 })?);
                                 at += 1;
                             }
@@ -258,11 +208,7 @@ pub fn read_ply_bytes(path: &Path, bytes: &[u8], policy: NonFinite) -> Result<Po
                         }
                     }
                     if at != values.len() {
-                        return Err(DataError::line(
-                            path,
-                            no,
-                            format!("expected {at} values, found {}", values.len()),
-                        ));
+                        return Err(DataError::line(path, no, format!("expected {at} values, found {}", values.len())));
                     }
                     let v = |k: usize| scalar_values[k] as f32;
                     cloud.push(item, [v(ix), v(iy), v(iz)], ii.map_or(0.0, v))?;
@@ -278,22 +224,12 @@ pub fn read_ply_bytes(path: &Path, bytes: &[u8], policy: NonFinite) -> Result<Po
                     for p in &element.properties {
                         match *p {
                             Property::Scalar { kind, .. } => {
-                                values.push(
-                                    kind.decode(take(path, bytes, &mut pos, kind.size())?, little),
-                                );
+                                values.push(kind.decode(take(path, bytes, &mut pos, kind.size())?, little));
                             }
-                            Property::List {
-                                count,
-                                item: item_kind,
-                            } => {
-                                let len = count
-                                    .decode(take(path, bytes, &mut pos, count.size())?, little);
+                            Property::List { count, item: item_kind } => {
+                                let len = count.decode(take(path, bytes, &mut pos, count.size())?, little);
                                 if !(0.0..=1e9).contains(&len) {
-                                    return Err(DataError::byte(
-                                        path,
-                                        pos as u64,
-                                        format!("bad list length {len}"),
-                                    ));
+                                    return Err(DataError::byte(path, pos as u64, format!("bad list length {len}")));
                                 }
                                 take(path, bytes, &mut pos, len as usize * item_kind.size())?;
                                 values.push(f64::NAN);
@@ -314,11 +250,7 @@ pub fn read_ply_bytes(path: &Path, bytes: &[u8], policy: NonFinite) -> Result<Po
 /// Takes `len` bytes at `pos`, or fails naming where the file ended.
 fn take<'a>(path: &Path, bytes: &'a [u8], pos: &mut usize, len: usize) -> Result<&'a [u8]> {
     if *pos + len > bytes.len() {
-        return Err(DataError::byte(
-            path,
-            bytes.len() as u64,
-            "file ends inside the binary body",
-        ));
+        return Err(DataError::byte(path, bytes.len() as u64, "file ends inside the binary body"));
     }
     let slice = &bytes[*pos..*pos + len];
     *pos += len;
@@ -338,15 +270,8 @@ pub fn ply_bytes(cloud: &PointCloud, format: PlyFormat) -> Vec<u8> {
         PlyFormat::BinaryLittleEndian => "binary_little_endian",
         PlyFormat::BinaryBigEndian => "binary_big_endian",
     };
-    let _ = write!(
-        out,
-        "ply\nformat {name} 1.0\nelement vertex {}\n",
-        cloud.len()
-    );
-    let _ = write!(
-        out,
-        "property float x\nproperty float y\nproperty float z\n"
-    );
+    let _ = write!(out, "ply\nformat {name} 1.0\nelement vertex {}\n", cloud.len());
+    let _ = write!(out, "property float x\nproperty float y\nproperty float z\n");
     if cloud.intensity.is_some() {
         let _ = writeln!(out, "property float intensity");
     }
@@ -361,12 +286,8 @@ pub fn ply_bytes(cloud: &PointCloud, format: PlyFormat) -> Vec<u8> {
                 let words: Vec<String> = values.iter().map(|v| v.to_string()).collect();
                 let _ = writeln!(out, "{}", words.join(" "));
             }
-            PlyFormat::BinaryLittleEndian => values
-                .iter()
-                .for_each(|v| out.extend_from_slice(&v.to_le_bytes())),
-            PlyFormat::BinaryBigEndian => values
-                .iter()
-                .for_each(|v| out.extend_from_slice(&v.to_be_bytes())),
+            PlyFormat::BinaryLittleEndian => values.iter().for_each(|v| out.extend_from_slice(&v.to_le_bytes())),
+            PlyFormat::BinaryBigEndian => values.iter().for_each(|v| out.extend_from_slice(&v.to_be_bytes())),
         }
     }
     out

@@ -37,41 +37,20 @@ pub const IMU_COLUMNS: [&str; 7] = ["timestamp", "ax", "ay", "az", "gx", "gy", "
 /// checks that timestamps (the first named column) strictly increase.
 fn read_columns<const N: usize>(path: &Path, columns: [&str; N]) -> Result<Vec<[f64; N]>> {
     let text = crate::atomic::read_text(path)?;
-    let mut lines = text
-        .lines()
-        .enumerate()
-        .map(|(k, l)| (k + 1, l.trim()))
-        .filter(|(_, l)| !l.is_empty());
-    let (_, header) = lines
-        .next()
-        .ok_or_else(|| DataError::invalid(path, "empty file: expected a header row"))?;
-    let names: Vec<&str> = header
-        .trim_start_matches('#')
-        .split(',')
-        .map(str::trim)
-        .collect();
+    let mut lines = text.lines().enumerate().map(|(k, l)| (k + 1, l.trim())).filter(|(_, l)| !l.is_empty());
+    let (_, header) = lines.next().ok_or_else(|| DataError::invalid(path, "empty file: expected a header row"))?;
+    let names: Vec<&str> = header.trim_start_matches('#').split(',').map(str::trim).collect();
     let mut index = [0usize; N];
     for (slot, column) in index.iter_mut().zip(columns) {
         *slot = names.iter().position(|n| *n == column).ok_or_else(|| {
-            DataError::line(
-                path,
-                1,
-                format!(
-                    "header has no `{column}` column (expected {})",
-                    columns.join(",")
-                ),
-            )
+            DataError::line(path, 1, format!("header has no `{column}` column (expected {})", columns.join(",")))
         })?;
     }
     let mut rows: Vec<[f64; N]> = Vec::new();
     for (line_no, line) in lines {
         let words: Vec<&str> = line.split(',').map(str::trim).collect();
         if words.len() != names.len() {
-            return Err(DataError::line(
-                path,
-                line_no,
-                format!("{} values for {} columns", words.len(), names.len()),
-            ));
+            return Err(DataError::line(path, line_no, format!("{} values for {} columns", words.len(), names.len())));
         }
         let mut row = [0.0; N];
         for (k, &i) in index.iter().enumerate() {
@@ -81,10 +60,7 @@ fn read_columns<const N: usize>(path: &Path, columns: [&str; N]) -> Result<Vec<[
                     return Err(DataError::line(
                         path,
                         line_no,
-                        format!(
-                            "column `{}`: `{}` is not a finite number",
-                            columns[k], words[i]
-                        ),
+                        format!("column `{}`: `{}` is not a finite number", columns[k], words[i]),
                     ));
                 }
             };
@@ -95,10 +71,7 @@ fn read_columns<const N: usize>(path: &Path, columns: [&str; N]) -> Result<Vec<[
             return Err(DataError::line(
                 path,
                 line_no,
-                format!(
-                    "timestamp {} does not increase (previous {})",
-                    row[0], prev[0]
-                ),
+                format!("timestamp {} does not increase (previous {})", row[0], prev[0]),
             ));
         }
         rows.push(row);
@@ -109,36 +82,21 @@ fn read_columns<const N: usize>(path: &Path, columns: [&str; N]) -> Result<Vec<[
 pub fn read_odometry(path: &Path) -> Result<Vec<OdometrySample>> {
     Ok(read_columns(path, ODOMETRY_COLUMNS)?
         .into_iter()
-        .map(|r| OdometrySample {
-            timestamp: r[0],
-            x: r[1],
-            y: r[2],
-            yaw: r[3],
-            v: r[4],
-            omega: r[5],
-        })
+        .map(|r| OdometrySample { timestamp: r[0], x: r[1], y: r[2], yaw: r[3], v: r[4], omega: r[5] })
         .collect())
 }
 
 pub fn read_imu(path: &Path) -> Result<Vec<ImuSample>> {
     Ok(read_columns(path, IMU_COLUMNS)?
         .into_iter()
-        .map(|r| ImuSample {
-            timestamp: r[0],
-            accel: [r[1], r[2], r[3]],
-            gyro: [r[4], r[5], r[6]],
-        })
+        .map(|r| ImuSample { timestamp: r[0], accel: [r[1], r[2], r[3]], gyro: [r[4], r[5], r[6]] })
         .collect())
 }
 
 pub fn write_odometry(path: &Path, samples: &[OdometrySample]) -> Result<()> {
     let mut out = ODOMETRY_COLUMNS.join(",") + "\n";
     for s in samples {
-        let _ = writeln!(
-            out,
-            "{:.6},{:.9},{:.9},{:.9},{:.9},{:.9}",
-            s.timestamp, s.x, s.y, s.yaw, s.v, s.omega
-        );
+        let _ = writeln!(out, "{:.6},{:.9},{:.9},{:.9},{:.9},{:.9}", s.timestamp, s.x, s.y, s.yaw, s.v, s.omega);
     }
     crate::atomic::write_bytes(path, out.as_bytes())
 }
@@ -148,11 +106,7 @@ pub fn write_imu(path: &Path, samples: &[ImuSample]) -> Result<()> {
     for s in samples {
         let [ax, ay, az] = s.accel;
         let [gx, gy, gz] = s.gyro;
-        let _ = writeln!(
-            out,
-            "{:.6},{ax:.9},{ay:.9},{az:.9},{gx:.9},{gy:.9},{gz:.9}",
-            s.timestamp
-        );
+        let _ = writeln!(out, "{:.6},{ax:.9},{ay:.9},{az:.9},{gx:.9},{gy:.9},{gz:.9}", s.timestamp);
     }
     crate::atomic::write_bytes(path, out.as_bytes())
 }

@@ -38,19 +38,10 @@ impl Trajectory {
     pub fn check_increasing(&self, path: &Path) -> Result<()> {
         for (k, w) in self.stamps.windows(2).enumerate() {
             if w[1] <= w[0] {
-                let what = if w[1] == w[0] {
-                    "duplicate"
-                } else {
-                    "decreasing"
-                };
+                let what = if w[1] == w[0] { "duplicate" } else { "decreasing" };
                 return Err(DataError::invalid(
                     path,
-                    format!(
-                        "{what} timestamp at pose {}: {} after {}",
-                        k + 1,
-                        w[1],
-                        w[0]
-                    ),
+                    format!("{what} timestamp at pose {}: {} after {}", k + 1, w[1], w[0]),
                 ));
             }
         }
@@ -67,9 +58,7 @@ pub enum TrajectoryFormat {
 
 /// Splits a data line on whitespace and commas.
 fn fields(line: &str) -> Vec<&str> {
-    line.split(|c: char| c.is_whitespace() || c == ',')
-        .filter(|w| !w.is_empty())
-        .collect()
+    line.split(|c: char| c.is_whitespace() || c == ',').filter(|w| !w.is_empty()).collect()
 }
 
 fn data_lines(text: &str) -> impl Iterator<Item = (usize, &str)> {
@@ -84,28 +73,13 @@ fn numbers(path: &Path, line_no: usize, words: &[&str]) -> Result<Vec<f64>> {
         .iter()
         .map(|w| match w.parse::<f64>() {
             Ok(v) if v.is_finite() => Ok(v),
-            Ok(_) => Err(DataError::line(
-                path,
-                line_no,
-                format!("non-finite value `{w}`"),
-            )),
-            Err(_) => Err(DataError::line(
-                path,
-                line_no,
-                format!("`{w}` is not a number"),
-            )),
+            Ok(_) => Err(DataError::line(path, line_no, format!("non-finite value `{w}`"))),
+            Err(_) => Err(DataError::line(path, line_no, format!("`{w}` is not a number"))),
         })
         .collect()
 }
 
-fn unit_quaternion(
-    path: &Path,
-    line_no: usize,
-    w: f64,
-    x: f64,
-    y: f64,
-    z: f64,
-) -> Result<UnitQuaternion<f64>> {
+fn unit_quaternion(path: &Path, line_no: usize, w: f64, x: f64, y: f64, z: f64) -> Result<UnitQuaternion<f64>> {
     let q = Quaternion::new(w, x, y, z);
     if q.norm() < 1e-6 {
         return Err(DataError::line(path, line_no, "quaternion has zero length"));
@@ -115,13 +89,9 @@ fn unit_quaternion(
 
 /// Detects the layout from the first data line.
 pub fn detect_format(path: &Path, text: &str) -> Result<TrajectoryFormat> {
-    let (line_no, line) = data_lines(text)
-        .next()
-        .ok_or_else(|| DataError::invalid(path, "no poses in the file"))?;
+    let (line_no, line) = data_lines(text).next().ok_or_else(|| DataError::invalid(path, "no poses in the file"))?;
     let words = fields(line);
-    let euroc_stamp = words
-        .first()
-        .is_some_and(|w| w.len() >= 16 && w.bytes().all(|b| b.is_ascii_digit()));
+    let euroc_stamp = words.first().is_some_and(|w| w.len() >= 16 && w.bytes().all(|b| b.is_ascii_digit()));
     match words.len() {
         n if line.contains(',') && euroc_stamp && n >= 8 => Ok(TrajectoryFormat::Euroc),
         8 => Ok(TrajectoryFormat::Tum),
@@ -129,9 +99,7 @@ pub fn detect_format(path: &Path, text: &str) -> Result<TrajectoryFormat> {
         n => Err(DataError::line(
             path,
             line_no,
-            format!(
-                "{n} values: not TUM (8), KITTI (12) or EuRoC (timestamp in ns, then >= 7 comma-separated values)"
-            ),
+            format!("{n} values: not TUM (8), KITTI (12) or EuRoC (timestamp in ns, then >= 7 comma-separated values)"),
         )),
     }
 }
@@ -161,18 +129,12 @@ pub fn parse_tum(path: &Path, text: &str) -> Result<Trajectory> {
             return Err(DataError::line(
                 path,
                 line_no,
-                format!(
-                    "expected 8 values `t tx ty tz qx qy qz qw`, found {}",
-                    words.len()
-                ),
+                format!("expected 8 values `t tx ty tz qx qy qz qw`, found {}", words.len()),
             ));
         }
         let v = numbers(path, line_no, &words)?;
         let q = unit_quaternion(path, line_no, v[7], v[4], v[5], v[6])?;
-        trajectory.push(
-            v[0],
-            Pose3::from_parts(Translation3::new(v[1], v[2], v[3]), q),
-        );
+        trajectory.push(v[0], Pose3::from_parts(Translation3::new(v[1], v[2], v[3]), q));
     }
     Ok(trajectory)
 }
@@ -197,12 +159,7 @@ pub fn read_kitti(path: &Path, times: Option<&Path>) -> Result<Trajectory> {
     {
         return Err(DataError::invalid(
             times.expect("times given"),
-            format!(
-                "{} timestamps for {} poses in {}",
-                s.len(),
-                trajectory.len(),
-                path.display()
-            ),
+            format!("{} timestamps for {} poses in {}", s.len(), trajectory.len(), path.display()),
         ));
     }
     Ok(trajectory)
@@ -221,16 +178,10 @@ pub fn parse_kitti(path: &Path, text: &str, stamps: Option<&[f64]>) -> Result<Tr
         }
         let v = numbers(path, line_no, &words)?;
         let r = Mat3::new(v[0], v[1], v[2], v[4], v[5], v[6], v[8], v[9], v[10]);
-        let q = rotation_from_matrix(&r).ok_or_else(|| {
-            DataError::line(path, line_no, "the 3x3 block is not a rotation matrix")
-        })?;
-        let stamp = stamps
-            .and_then(|s| s.get(index).copied())
-            .unwrap_or(index as f64);
-        trajectory.push(
-            stamp,
-            Pose3::from_parts(Translation3::new(v[3], v[7], v[11]), q),
-        );
+        let q = rotation_from_matrix(&r)
+            .ok_or_else(|| DataError::line(path, line_no, "the 3x3 block is not a rotation matrix"))?;
+        let stamp = stamps.and_then(|s| s.get(index).copied()).unwrap_or(index as f64);
+        trajectory.push(stamp, Pose3::from_parts(Translation3::new(v[3], v[7], v[11]), q));
     }
     Ok(trajectory)
 }
@@ -240,26 +191,15 @@ pub fn parse_euroc(path: &Path, text: &str) -> Result<Trajectory> {
     for (line_no, line) in data_lines(text) {
         let words = fields(line);
         if words.len() < 8 {
-            return Err(DataError::line(
-                path,
-                line_no,
-                format!("expected at least 8 values, found {}", words.len()),
-            ));
+            return Err(DataError::line(path, line_no, format!("expected at least 8 values, found {}", words.len())));
         }
-        let ns: u64 = words[0].parse().map_err(|_| {
-            DataError::line(
-                path,
-                line_no,
-                format!("`{}` is not a timestamp in ns", words[0]),
-            )
-        })?;
+        let ns: u64 = words[0]
+            .parse()
+            .map_err(|_| DataError::line(path, line_no, format!("`{}` is not a timestamp in ns", words[0])))?;
         let v = numbers(path, line_no, &words[1..8])?;
         let stamp = (ns / 1_000_000_000) as f64 + (ns % 1_000_000_000) as f64 * 1e-9;
         let q = unit_quaternion(path, line_no, v[3], v[4], v[5], v[6])?;
-        trajectory.push(
-            stamp,
-            Pose3::from_parts(Translation3::new(v[0], v[1], v[2]), q),
-        );
+        trajectory.push(stamp, Pose3::from_parts(Translation3::new(v[0], v[1], v[2]), q));
     }
     Ok(trajectory)
 }
@@ -270,11 +210,7 @@ pub fn tum_text(trajectory: &Trajectory) -> String {
     for (t, p) in trajectory.stamps.iter().zip(&trajectory.poses) {
         let v = p.translation.vector;
         let q = p.rotation.quaternion();
-        let _ = writeln!(
-            out,
-            "{t:.9} {:.9} {:.9} {:.9} {:.9} {:.9} {:.9} {:.9}",
-            v.x, v.y, v.z, q.i, q.j, q.k, q.w
-        );
+        let _ = writeln!(out, "{t:.9} {:.9} {:.9} {:.9} {:.9} {:.9} {:.9} {:.9}", v.x, v.y, v.z, q.i, q.j, q.k, q.w);
     }
     out
 }
@@ -289,10 +225,8 @@ pub fn write_kitti(path: &Path, trajectory: &Trajectory) -> Result<()> {
     let mut out = String::new();
     for p in &trajectory.poses {
         let m = p.to_homogeneous();
-        let row: Vec<String> = (0..3)
-            .flat_map(|r| (0..4).map(move |c| (r, c)))
-            .map(|(r, c)| format!("{:.9e}", m[(r, c)]))
-            .collect();
+        let row: Vec<String> =
+            (0..3).flat_map(|r| (0..4).map(move |c| (r, c))).map(|(r, c)| format!("{:.9e}", m[(r, c)])).collect();
         let _ = writeln!(out, "{}", row.join(" "));
     }
     crate::atomic::write_bytes(path, out.as_bytes())

@@ -39,16 +39,8 @@ impl Bvh {
                 (lo - pad, hi + pad)
             })
             .collect();
-        let mut bvh = Self {
-            nodes: Vec::new(),
-            order: (0..surfaces.len()).collect(),
-        };
-        bvh.nodes.push(Node {
-            lo: Point3::origin(),
-            hi: Point3::origin(),
-            first: 0,
-            count: 0,
-        });
+        let mut bvh = Self { nodes: Vec::new(), order: (0..surfaces.len()).collect() };
+        bvh.nodes.push(Node { lo: Point3::origin(), hi: Point3::origin(), first: 0, count: 0 });
         bvh.split(0, 0, surfaces.len(), &boxes);
         bvh
     }
@@ -76,20 +68,15 @@ impl Bvh {
             self.order[start..end].sort_by(|&a, &b| centre(a).total_cmp(&centre(b)));
             let n = end - start;
             let mut left_area = vec![0.0; n];
-            let (mut lo, mut hi) = (
-                Point3::from(Vec3::repeat(f64::INFINITY)),
-                Point3::from(Vec3::repeat(f64::NEG_INFINITY)),
-            );
-            for k in 0..n {
-                let i = self.order[start + k];
+            let (mut lo, mut hi) =
+                (Point3::from(Vec3::repeat(f64::INFINITY)), Point3::from(Vec3::repeat(f64::NEG_INFINITY)));
+            for (slot, &i) in left_area.iter_mut().zip(&self.order[start..end]) {
                 lo = lo.inf(&boxes[i].0);
                 hi = hi.sup(&boxes[i].1);
-                left_area[k] = area(&lo, &hi);
+                *slot = area(&lo, &hi);
             }
-            let (mut lo, mut hi) = (
-                Point3::from(Vec3::repeat(f64::INFINITY)),
-                Point3::from(Vec3::repeat(f64::NEG_INFINITY)),
-            );
+            let (mut lo, mut hi) =
+                (Point3::from(Vec3::repeat(f64::INFINITY)), Point3::from(Vec3::repeat(f64::NEG_INFINITY)));
             for k in (1..n).rev() {
                 let i = self.order[start + k];
                 lo = lo.inf(&boxes[i].0);
@@ -104,32 +91,15 @@ impl Bvh {
         let centre = |i: usize| (boxes[i].0[axis] + boxes[i].1[axis]) * 0.5;
         self.order[start..end].sort_by(|&a, &b| centre(a).total_cmp(&centre(b)));
         let left = self.nodes.len();
-        self.nodes.push(Node {
-            lo,
-            hi,
-            first: 0,
-            count: 0,
-        });
-        self.nodes.push(Node {
-            lo,
-            hi,
-            first: 0,
-            count: 0,
-        });
+        self.nodes.push(Node { lo, hi, first: 0, count: 0 });
+        self.nodes.push(Node { lo, hi, first: 0, count: 0 });
         self.nodes[node].first = left;
         self.split(left, start, mid, boxes);
         self.split(left + 1, mid, end, boxes);
     }
 
     /// The nearest surface along `dir` from `origin` with `t` in `(t_min, t_max)`.
-    pub fn nearest(
-        &self,
-        surfaces: &[Surface],
-        origin: &Point3,
-        dir: &Vec3,
-        t_min: f64,
-        t_max: f64,
-    ) -> Option<Hit> {
+    pub fn nearest(&self, surfaces: &[Surface], origin: &Point3, dir: &Vec3, t_min: f64, t_max: f64) -> Option<Hit> {
         let inv = Vec3::new(1.0 / dir.x, 1.0 / dir.y, 1.0 / dir.z);
         let mut best: Option<Hit> = None;
         let mut limit = t_max;
@@ -157,22 +127,8 @@ impl Bvh {
                 continue;
             }
             let (a, b) = (node.first, node.first + 1);
-            let ta = slab(
-                &self.nodes[a].lo,
-                &self.nodes[a].hi,
-                origin,
-                &inv,
-                t_min,
-                limit,
-            );
-            let tb = slab(
-                &self.nodes[b].lo,
-                &self.nodes[b].hi,
-                origin,
-                &inv,
-                t_min,
-                limit,
-            );
+            let ta = slab(&self.nodes[a].lo, &self.nodes[a].hi, origin, &inv, t_min, limit);
+            let tb = slab(&self.nodes[b].lo, &self.nodes[b].hi, origin, &inv, t_min, limit);
             let (first, second) = match (ta, tb) {
                 (Some(x), Some(y)) if y < x => (Some((b, y)), Some((a, x))),
                 (x, y) => (x.map(|t| (a, t)), y.map(|t| (b, t))),
@@ -193,14 +149,7 @@ fn area(lo: &Point3, hi: &Point3) -> f64 {
 }
 
 /// Where a ray enters an axis-aligned box within `(t_min, t_max)`, if it does.
-fn slab(
-    lo: &Point3,
-    hi: &Point3,
-    origin: &Point3,
-    inv: &Vec3,
-    t_min: f64,
-    t_max: f64,
-) -> Option<f64> {
+fn slab(lo: &Point3, hi: &Point3, origin: &Point3, inv: &Vec3, t_min: f64, t_max: f64) -> Option<f64> {
     let (mut t0, mut t1) = (t_min, t_max);
     for a in 0..3 {
         let mut near = (lo[a] - origin[a]) * inv[a];

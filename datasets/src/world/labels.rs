@@ -21,10 +21,7 @@ pub struct LabelConfig {
 
 impl Default for LabelConfig {
     fn default() -> Self {
-        Self {
-            box_size_px: 48.0,
-            max_depth_m: 10.0,
-        }
+        Self { box_size_px: 48.0, max_depth_m: 10.0 }
     }
 }
 
@@ -34,10 +31,7 @@ impl LabelConfig {
             return Err(format!("box size {} px outside 4..256", self.box_size_px));
         }
         if !(self.max_depth_m > 0.5) {
-            return Err(format!(
-                "max depth {} m must exceed 0.5 m",
-                self.max_depth_m
-            ));
+            return Err(format!("max depth {} m must exceed 0.5 m", self.max_depth_m));
         }
         Ok(())
     }
@@ -81,22 +75,12 @@ pub fn visible_corners(
         let to = p_world - eye;
         let distance = to.norm();
         let tolerance = (0.01 * distance).max(0.02);
-        if world
-            .cast(&eye, &(to / distance), 1e-4, distance - tolerance)
-            .is_some()
-        {
+        if world.cast(&eye, &(to / distance), 1e-4, distance - tolerance).is_some() {
             continue;
         }
         let size = config.box_size_px;
-        let bbox = BBox::around(uv[0] as f32, uv[1] as f32, size)
-            .clip(camera.width as f32, camera.height as f32);
-        labels.push(CornerLabel {
-            corner: index,
-            kind: corner.kind,
-            point: uv,
-            bbox,
-            depth_m: p_cam.z,
-        });
+        let bbox = BBox::around(uv[0] as f32, uv[1] as f32, size).clip(camera.width as f32, camera.height as f32);
+        labels.push(CornerLabel { corner: index, kind: corner.kind, point: uv, bbox, depth_m: p_cam.z });
     }
     labels
 }

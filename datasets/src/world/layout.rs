@@ -27,12 +27,7 @@ pub struct WorldConfig {
 
 impl Default for WorldConfig {
     fn default() -> Self {
-        Self {
-            level_heights_m: [0.0, 0.5, 1.0],
-            ramp_slope_deg: 10.0,
-            ceiling_height_m: 3.5,
-            corridor_width_m: 2.2,
-        }
+        Self { level_heights_m: [0.0, 0.5, 1.0], ramp_slope_deg: 10.0, ceiling_height_m: 3.5, corridor_width_m: 2.2 }
     }
 }
 
@@ -40,28 +35,16 @@ impl WorldConfig {
     pub fn validate(&self) -> Result<(), String> {
         let [h0, h1, h2] = self.level_heights_m;
         if !(h0.is_finite() && h1 > h0 + 0.05 && h2 > h1 + 0.05) {
-            return Err(format!(
-                "level heights must rise by at least 5 cm each: {:?}",
-                self.level_heights_m
-            ));
+            return Err(format!("level heights must rise by at least 5 cm each: {:?}", self.level_heights_m));
         }
         if !(1.0..=30.0).contains(&self.ramp_slope_deg) {
-            return Err(format!(
-                "ramp slope {} deg is outside 1..30 deg",
-                self.ramp_slope_deg
-            ));
+            return Err(format!("ramp slope {} deg is outside 1..30 deg", self.ramp_slope_deg));
         }
         if !(self.ceiling_height_m > h2 + 1.5 && self.ceiling_height_m < 20.0) {
-            return Err(format!(
-                "ceiling at {} m leaves less than 1.5 m above level 3",
-                self.ceiling_height_m
-            ));
+            return Err(format!("ceiling at {} m leaves less than 1.5 m above level 3", self.ceiling_height_m));
         }
         if !(1.2..=4.0).contains(&self.corridor_width_m) {
-            return Err(format!(
-                "corridor width {} m is outside 1.2..4 m",
-                self.corridor_width_m
-            ));
+            return Err(format!("corridor width {} m is outside 1.2..4 m", self.corridor_width_m));
         }
         Ok(())
     }
@@ -117,13 +100,7 @@ impl Region {
     pub fn floor_height(&self, x: f64, y: f64) -> f64 {
         match self.floor {
             Floor::Flat { height_m } => height_m,
-            Floor::Ramp {
-                axis,
-                from,
-                to,
-                h0,
-                h1,
-            } => {
+            Floor::Ramp { axis, from, to, h0, h1 } => {
                 let c = if axis == Axis::X { x } else { y };
                 h0 + (h1 - h0) * ((c - from) / (to - from)).clamp(0.0, 1.0)
             }
@@ -204,14 +181,13 @@ impl Layout {
         let l2 = config.ramp_run(h2 - h1);
         let turn_x = 13.0 + l1;
         let flat = |height_m| Floor::Flat { height_m };
-        let region =
-            |name: &str, x: [f64; 2], y: [f64; 2], floor: Floor, level: Option<usize>| Region {
-                name: name.to_string(),
-                x,
-                y,
-                floor,
-                level,
-            };
+        let region = |name: &str, x: [f64; 2], y: [f64; 2], floor: Floor, level: Option<usize>| Region {
+            name: name.to_string(),
+            x,
+            y,
+            floor,
+            level,
+        };
         let regions = vec![
             region("level 1 hall", [-1.5, 6.0], [-2.5, 2.5], flat(h0), Some(0)),
             region("level 1 corridor", [6.0, 7.5], [-w, w], flat(h0), Some(0)),
@@ -219,69 +195,24 @@ impl Layout {
                 "ramp 1",
                 [7.5, 7.5 + l1],
                 [-w, w],
-                Floor::Ramp {
-                    axis: Axis::X,
-                    from: 7.5,
-                    to: 7.5 + l1,
-                    h0,
-                    h1,
-                },
+                Floor::Ramp { axis: Axis::X, from: 7.5, to: 7.5 + l1, h0, h1 },
                 None,
             ),
-            region(
-                "level 2 corridor",
-                [7.5 + l1, 9.5 + l1],
-                [-w, w],
-                flat(h1),
-                Some(1),
-            ),
-            region(
-                "level 2 hall",
-                [9.5 + l1, 16.5 + l1],
-                [-2.5, 3.5],
-                flat(h1),
-                Some(1),
-            ),
-            region(
-                "level 2 corridor north",
-                [turn_x - w, turn_x + w],
-                [3.5, 5.0],
-                flat(h1),
-                Some(1),
-            ),
+            region("level 2 corridor", [7.5 + l1, 9.5 + l1], [-w, w], flat(h1), Some(1)),
+            region("level 2 hall", [9.5 + l1, 16.5 + l1], [-2.5, 3.5], flat(h1), Some(1)),
+            region("level 2 corridor north", [turn_x - w, turn_x + w], [3.5, 5.0], flat(h1), Some(1)),
             region(
                 "ramp 2",
                 [turn_x - w, turn_x + w],
                 [5.0, 5.0 + l2],
-                Floor::Ramp {
-                    axis: Axis::Y,
-                    from: 5.0,
-                    to: 5.0 + l2,
-                    h0: h1,
-                    h1: h2,
-                },
+                Floor::Ramp { axis: Axis::Y, from: 5.0, to: 5.0 + l2, h0: h1, h1: h2 },
                 None,
             ),
-            region(
-                "level 3 corridor",
-                [turn_x - w, turn_x + w],
-                [5.0 + l2, 6.5 + l2],
-                flat(h2),
-                Some(2),
-            ),
-            region(
-                "level 3 hall",
-                [9.5 + l1, 16.5 + l1],
-                [6.5 + l2, 12.5 + l2],
-                flat(h2),
-                Some(2),
-            ),
+            region("level 3 corridor", [turn_x - w, turn_x + w], [5.0 + l2, 6.5 + l2], flat(h2), Some(2)),
+            region("level 3 hall", [9.5 + l1, 16.5 + l1], [6.5 + l2, 12.5 + l2], flat(h2), Some(2)),
         ];
-        let obstacle = |x: [f64; 2], y: [f64; 2], floor: f64, height: f64| Obstacle {
-            x,
-            y,
-            z: [floor, floor + height],
-        };
+        let obstacle =
+            |x: [f64; 2], y: [f64; 2], floor: f64, height: f64| Obstacle { x, y, z: [floor, floor + height] };
         let obstacles = vec![
             obstacle([2.5, 3.1], [1.3, 1.9], h0, 0.7),
             obstacle([4.2, 4.8], [-1.9, -1.3], h0, 0.5),
@@ -306,10 +237,7 @@ impl Layout {
 
     /// The floor height under `(x, y)`, or `None` outside the free space.
     pub fn floor_height(&self, x: f64, y: f64) -> Option<f64> {
-        self.regions
-            .iter()
-            .find(|r| r.contains(x, y))
-            .map(|r| r.floor_height(x, y))
+        self.regions.iter().find(|r| r.contains(x, y)).map(|r| r.floor_height(x, y))
     }
 
     /// The region under `(x, y)`.
@@ -324,70 +252,28 @@ impl Layout {
     fn build_surfaces_and_corners(&mut self, seed: u64) {
         let ceiling = self.config.ceiling_height_m;
         let mut surfaces = Vec::new();
-        let palette = [
-            [0.85, 0.82, 0.74],
-            [0.72, 0.80, 0.86],
-            [0.88, 0.78, 0.70],
-            [0.78, 0.85, 0.75],
-            [0.90, 0.88, 0.84],
-        ];
+        let palette =
+            [[0.85, 0.82, 0.74], [0.72, 0.80, 0.86], [0.88, 0.78, 0.70], [0.78, 0.85, 0.75], [0.90, 0.88, 0.84]];
         let pick = |k: u64| palette[(mix(seed ^ k) % palette.len() as u64) as usize];
 
         // Floors and ceilings, one per region.
         for (ri, r) in self.regions.iter().enumerate() {
-            let corners = [
-                [r.x[0], r.y[0]],
-                [r.x[1], r.y[0]],
-                [r.x[1], r.y[1]],
-                [r.x[0], r.y[1]],
-            ];
-            let floor: Vec<Point3> = corners
-                .iter()
-                .map(|&[x, y]| Point3::new(x, y, r.floor_height(x, y)))
-                .collect();
+            let corners = [[r.x[0], r.y[0]], [r.x[1], r.y[0]], [r.x[1], r.y[1]], [r.x[0], r.y[1]]];
+            let floor: Vec<Point3> = corners.iter().map(|&[x, y]| Point3::new(x, y, r.floor_height(x, y))).collect();
             let (kind, pattern, base, u_hint) = match r.floor {
-                Floor::Flat { .. } => (
-                    SurfaceKind::Floor,
-                    Pattern::Tiles { size_m: 0.6 },
-                    [0.55, 0.52, 0.48],
-                    Vec3::x(),
-                ),
+                Floor::Flat { .. } => {
+                    (SurfaceKind::Floor, Pattern::Tiles { size_m: 0.6 }, [0.55, 0.52, 0.48], Vec3::x())
+                }
                 Floor::Ramp { axis, .. } => {
-                    let u = if axis == Axis::X {
-                        Vec3::x()
-                    } else {
-                        Vec3::y()
-                    };
-                    (
-                        SurfaceKind::Ramp,
-                        Pattern::Stripes { period_m: 0.3 },
-                        [0.45, 0.47, 0.50],
-                        u,
-                    )
+                    let u = if axis == Axis::X { Vec3::x() } else { Vec3::y() };
+                    (SurfaceKind::Ramp, Pattern::Stripes { period_m: 0.3 }, [0.45, 0.47, 0.50], u)
                 }
             };
-            let material = Material {
-                base,
-                pattern,
-                seed: mix(seed ^ (100 + ri as u64)),
-            };
+            let material = Material { base, pattern, seed: mix(seed ^ (100 + ri as u64)) };
             surfaces.push(Surface::new(kind, floor, Vec3::z(), u_hint, material));
-            let ceil: Vec<Point3> = corners
-                .iter()
-                .map(|&[x, y]| Point3::new(x, y, ceiling))
-                .collect();
-            let material = Material {
-                base: [0.92, 0.92, 0.90],
-                pattern: Pattern::Panels { size_m: 1.2 },
-                seed: 0,
-            };
-            surfaces.push(Surface::new(
-                SurfaceKind::Ceiling,
-                ceil,
-                -Vec3::z(),
-                Vec3::x(),
-                material,
-            ));
+            let ceil: Vec<Point3> = corners.iter().map(|&[x, y]| Point3::new(x, y, ceiling)).collect();
+            let material = Material { base: [0.92, 0.92, 0.90], pattern: Pattern::Panels { size_m: 1.2 }, seed: 0 };
+            surfaces.push(Surface::new(SurfaceKind::Ceiling, ceil, -Vec3::z(), Vec3::x(), material));
         }
 
         // Walls: the parts of each rectangle edge with no free space outside.
@@ -409,12 +295,7 @@ impl Layout {
             for (fixed, range, out, along_x) in edges {
                 let breaks = if along_x { &breaks_x } else { &breaks_y };
                 let mut cuts: Vec<f64> = vec![range[0]];
-                cuts.extend(
-                    breaks
-                        .iter()
-                        .copied()
-                        .filter(|&b| b > range[0] + EPS && b < range[1] - EPS),
-                );
+                cuts.extend(breaks.iter().copied().filter(|&b| b > range[0] + EPS && b < range[1] - EPS));
                 cuts.push(range[1]);
                 // Contiguous runs of sub-intervals with nothing outside.
                 let mut runs: Vec<[f64; 2]> = Vec::new();
@@ -439,11 +320,7 @@ impl Layout {
                         Point3::new(xb, yb, ceiling),
                         Point3::new(xa, ya, ceiling),
                     ];
-                    let inward = if along_x {
-                        Vec3::new(0.0, -out, 0.0)
-                    } else {
-                        Vec3::new(-out, 0.0, 0.0)
-                    };
+                    let inward = if along_x { Vec3::new(0.0, -out, 0.0) } else { Vec3::new(-out, 0.0, 0.0) };
                     let u_hint = if along_x { Vec3::x() } else { Vec3::y() };
                     let material = Material {
                         base: pick(wall_index),
@@ -451,18 +328,8 @@ impl Layout {
                         seed: mix(seed ^ (1000 + wall_index)),
                     };
                     wall_index += 1;
-                    surfaces.push(Surface::new(
-                        SurfaceKind::Wall,
-                        verts,
-                        inward,
-                        u_hint,
-                        material,
-                    ));
-                    let ends = if along_x {
-                        &mut x_wall_ends
-                    } else {
-                        &mut y_wall_ends
-                    };
+                    surfaces.push(Surface::new(SurfaceKind::Wall, verts, inward, u_hint, material));
+                    let ends = if along_x { &mut x_wall_ends } else { &mut y_wall_ends };
                     ends.push([xa, ya]);
                     ends.push([xb, yb]);
                 }
@@ -472,18 +339,13 @@ impl Layout {
         // Wall corners: where a wall along x ends on a wall along y.
         let mut corners: Vec<Corner> = Vec::new();
         let push_corner = |corners: &mut Vec<Corner>, p: [f64; 3], kind: CornerKind| {
-            let dup = corners
-                .iter()
-                .any(|c| (0..3).all(|k| (c.position[k] - p[k]).abs() < 1e-6));
+            let dup = corners.iter().any(|c| (0..3).all(|k| (c.position[k] - p[k]).abs() < 1e-6));
             if !dup {
                 corners.push(Corner { position: p, kind });
             }
         };
         for p in &x_wall_ends {
-            if y_wall_ends
-                .iter()
-                .any(|q| (p[0] - q[0]).abs() < EPS && (p[1] - q[1]).abs() < EPS)
-            {
+            if y_wall_ends.iter().any(|q| (p[0] - q[0]).abs() < EPS && (p[1] - q[1]).abs() < EPS) {
                 let floor = self.floor_height(p[0], p[1]).unwrap_or(0.0);
                 push_corner(&mut corners, [p[0], p[1], floor], CornerKind::Floor);
                 push_corner(&mut corners, [p[0], p[1], ceiling], CornerKind::Ceiling);
@@ -491,14 +353,7 @@ impl Layout {
         }
         // Ramp ends: both ends of the two ramp-floor edges.
         for r in &self.regions {
-            if let Floor::Ramp {
-                axis,
-                from,
-                to,
-                h0,
-                h1,
-            } = r.floor
-            {
+            if let Floor::Ramp { axis, from, to, h0, h1 } = r.floor {
                 for (c, h) in [(from, h0), (to, h1)] {
                     let across = if axis == Axis::X { r.y } else { r.x };
                     for s in across {
@@ -533,20 +388,8 @@ impl Layout {
                 Vec3::x(),
                 material,
             ));
-            surfaces.push(Surface::new(
-                SurfaceKind::BoxSide,
-                quad([x1, y0], [x1, y1]),
-                Vec3::x(),
-                Vec3::y(),
-                material,
-            ));
-            surfaces.push(Surface::new(
-                SurfaceKind::BoxSide,
-                quad([x1, y1], [x0, y1]),
-                Vec3::y(),
-                Vec3::x(),
-                material,
-            ));
+            surfaces.push(Surface::new(SurfaceKind::BoxSide, quad([x1, y0], [x1, y1]), Vec3::x(), Vec3::y(), material));
+            surfaces.push(Surface::new(SurfaceKind::BoxSide, quad([x1, y1], [x0, y1]), Vec3::y(), Vec3::x(), material));
             surfaces.push(Surface::new(
                 SurfaceKind::BoxSide,
                 quad([x0, y1], [x0, y0]),
@@ -560,13 +403,7 @@ impl Layout {
                 Point3::new(x1, y1, z1),
                 Point3::new(x0, y1, z1),
             ];
-            surfaces.push(Surface::new(
-                SurfaceKind::BoxTop,
-                top,
-                Vec3::z(),
-                Vec3::x(),
-                material,
-            ));
+            surfaces.push(Surface::new(SurfaceKind::BoxTop, top, Vec3::z(), Vec3::x(), material));
             for x in b.x {
                 for y in b.y {
                     push_corner(&mut corners, [x, y, z1], CornerKind::BoxTop);
@@ -579,13 +416,7 @@ impl Layout {
         self.lights = self
             .regions
             .iter()
-            .map(|r| Light {
-                position: [
-                    (r.x[0] + r.x[1]) / 2.0,
-                    (r.y[0] + r.y[1]) / 2.0,
-                    ceiling - 0.1,
-                ],
-            })
+            .map(|r| Light { position: [(r.x[0] + r.x[1]) / 2.0, (r.y[0] + r.y[1]) / 2.0, ceiling - 0.1] })
             .collect();
         self.surfaces = surfaces;
         self.corners = corners;

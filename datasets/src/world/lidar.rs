@@ -54,18 +54,10 @@ impl LidarConfig {
             return Err("elevations must satisfy -90 <= min <= max <= 90 deg".into());
         }
         if !(self.azimuth_step_deg > 0.01 && self.azimuth_step_deg <= 10.0) {
-            return Err(format!(
-                "azimuth step {} deg outside 0.01..10",
-                self.azimuth_step_deg
-            ));
+            return Err(format!("azimuth step {} deg outside 0.01..10", self.azimuth_step_deg));
         }
-        if !(self.range_noise_m >= 0.0
-            && (0.0..1.0).contains(&self.dropout)
-            && self.min_range_m < self.max_range_m)
-        {
-            return Err(
-                "range noise must be >= 0, dropout in 0..1 and min range < max range".into(),
-            );
+        if !(self.range_noise_m >= 0.0 && (0.0..1.0).contains(&self.dropout) && self.min_range_m < self.max_range_m) {
+            return Err("range noise must be >= 0, dropout in 0..1 and min range < max range".into());
         }
         Ok(())
     }
@@ -78,8 +70,7 @@ impl LidarConfig {
                     self.min_elevation_deg
                 } else {
                     self.min_elevation_deg
-                        + (self.max_elevation_deg - self.min_elevation_deg) * i as f64
-                            / (n - 1) as f64
+                        + (self.max_elevation_deg - self.min_elevation_deg) * i as f64 / (n - 1) as f64
                 }
             })
             .collect()
@@ -88,11 +79,7 @@ impl LidarConfig {
 
 /// One scan from `world_from_lidar`; `key` seeds its noise and dropouts.
 pub fn scan(world: &World, config: &LidarConfig, world_from_lidar: &Pose3, key: u64) -> PointCloud {
-    let elevations: Vec<f64> = config
-        .elevations_deg()
-        .iter()
-        .map(|e| e.to_radians())
-        .collect();
+    let elevations: Vec<f64> = config.elevations_deg().iter().map(|e| e.to_radians()).collect();
     let steps = (360.0 / config.azimuth_step_deg).round() as usize;
     let origin = nalgebra::Point3::from(world_from_lidar.translation.vector);
     let returns: Vec<(P3<f32>, f32)> = (0..steps)
@@ -105,8 +92,7 @@ pub fn scan(world: &World, config: &LidarConfig, world_from_lidar: &Pose3, key: 
                 if unit(id) < config.dropout {
                     return None;
                 }
-                let dir_lidar =
-                    Vec3::new(el.cos() * azimuth.cos(), el.cos() * azimuth.sin(), el.sin());
+                let dir_lidar = Vec3::new(el.cos() * azimuth.cos(), el.cos() * azimuth.sin(), el.sin());
                 let dir = world_from_lidar.rotation * dir_lidar;
                 let hit = world.cast(origin, &dir, config.min_range_m, config.max_range_m)?;
                 let range = hit.t + config.range_noise_m * gaussian(id ^ 0x1d) as f64;
@@ -120,10 +106,7 @@ pub fn scan(world: &World, config: &LidarConfig, world_from_lidar: &Pose3, key: 
                     SurfaceKind::BoxSide | SurfaceKind::BoxTop => 0.45,
                 };
                 let intensity = base * surface.normal.dot(&dir).abs().max(0.05);
-                Some((
-                    P3::new(p.x as f32, p.y as f32, p.z as f32),
-                    intensity as f32,
-                ))
+                Some((P3::new(p.x as f32, p.y as f32, p.z as f32), intensity as f32))
             })
         })
         .collect();

@@ -34,7 +34,6 @@ impl World {
     /// The nearest surface along a ray (`dir` need not be unit; `t` is in
     /// units of `dir`).
     pub fn cast(&self, origin: &Point3, dir: &Vec3, t_min: f64, t_max: f64) -> Option<Hit> {
-        self.bvh
-            .nearest(&self.layout.surfaces, origin, dir, t_min, t_max)
+        self.bvh.nearest(&self.layout.surfaces, origin, dir, t_min, t_max)
     }
 }

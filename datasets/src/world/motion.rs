@@ -49,14 +49,8 @@ impl Default for MotionConfig {
 impl MotionConfig {
     pub fn validate(&self) -> Result<(), String> {
         let rates = [self.odometry_rate_hz, self.imu_rate_hz];
-        if rates
-            .iter()
-            .any(|r| !(r.is_finite() && *r > 0.0 && *r <= 2000.0))
-        {
-            return Err(format!(
-                "sensor rates must be in (0, 2000] Hz: odometry {}, IMU {}",
-                rates[0], rates[1]
-            ));
+        if rates.iter().any(|r| !(r.is_finite() && *r > 0.0 && *r <= 2000.0)) {
+            return Err(format!("sensor rates must be in (0, 2000] Hz: odometry {}, IMU {}", rates[0], rates[1]));
         }
         let noises = [
             self.speed_scale_error,
@@ -97,25 +91,15 @@ pub fn simulate_odometry(
     let steps = (duration_s * config.odometry_rate_hz).floor() as usize;
     let scale = 1.0 + config.speed_scale_error * gaussian(mix(key ^ 1)) as f64;
     let bias = config.yaw_rate_bias_rps * gaussian(mix(key ^ 2)) as f64;
-    let mut state = OdometrySample {
-        timestamp: 0.0,
-        x: 0.0,
-        y: 0.0,
-        yaw: 0.0,
-        v: 0.0,
-        omega: 0.0,
-    };
+    let mut state = OdometrySample { timestamp: 0.0, x: 0.0, y: 0.0, yaw: 0.0, v: 0.0, omega: 0.0 };
     let mut out = vec![state];
     for k in 1..=steps {
         let (t0, t1) = ((k - 1) as f64 * dt, k as f64 * dt);
         let (a, b) = (world_from_robot(t0), world_from_robot(t1));
         let v_true = (b.translation.vector - a.translation.vector).norm() / dt;
         let w_true = wrap(heading(&b) - heading(&a)) / dt;
-        let v = v_true * scale
-            + config.speed_noise_mps * gaussian(mix(key ^ (k as u64) << 8 ^ 3)) as f64;
-        let omega = w_true
-            + bias
-            + config.yaw_rate_noise_rps * gaussian(mix(key ^ (k as u64) << 8 ^ 4)) as f64;
+        let v = v_true * scale + config.speed_noise_mps * gaussian(mix(key ^ (k as u64) << 8 ^ 3)) as f64;
+        let omega = w_true + bias + config.yaw_rate_noise_rps * gaussian(mix(key ^ (k as u64) << 8 ^ 4)) as f64;
         // Midpoint integration of the unicycle model.
         let mid = state.yaw + omega * dt / 2.0;
         state = OdometrySample {
@@ -147,32 +131,16 @@ pub fn simulate_imu(
     (0..=steps)
         .map(|k| {
             let t = k as f64 * dt;
-            let (before, now, after) = (
-                world_from_robot(t - dt),
-                world_from_robot(t),
-                world_from_robot(t + dt),
-            );
-            let accel_world = (after.translation.vector - 2.0 * now.translation.vector
-                + before.translation.vector)
-                / (dt * dt);
-            let specific =
-                now.rotation.inverse() * (accel_world + Vec3::new(0.0, 0.0, GRAVITY_MPS2));
-            let (half_a, half_b) = (
-                world_from_robot(t - dt / 2.0),
-                world_from_robot(t + dt / 2.0),
-            );
+            let (before, now, after) = (world_from_robot(t - dt), world_from_robot(t), world_from_robot(t + dt));
+            let accel_world =
+                (after.translation.vector - 2.0 * now.translation.vector + before.translation.vector) / (dt * dt);
+            let specific = now.rotation.inverse() * (accel_world + Vec3::new(0.0, 0.0, GRAVITY_MPS2));
+            let (half_a, half_b) = (world_from_robot(t - dt / 2.0), world_from_robot(t + dt / 2.0));
             let rate = (half_a.rotation.inverse() * half_b.rotation).scaled_axis() / dt;
             let noise = |c: u64| draw((k as u64) << 8 ^ c);
-            let accel = specific
-                + accel_bias
-                + Vec3::new(noise(1), noise(2), noise(3)) * config.accel_noise_mps2;
-            let gyro =
-                rate + gyro_bias + Vec3::new(noise(4), noise(5), noise(6)) * config.gyro_noise_rps;
-            ImuSample {
-                timestamp: t,
-                accel: accel.into(),
-                gyro: gyro.into(),
-            }
+            let accel = specific + accel_bias + Vec3::new(noise(1), noise(2), noise(3)) * config.accel_noise_mps2;
+            let gyro = rate + gyro_bias + Vec3::new(noise(4), noise(5), noise(6)) * config.gyro_noise_rps;
+            ImuSample { timestamp: t, accel: accel.into(), gyro: gyro.into() }
         })
         .collect()
 }

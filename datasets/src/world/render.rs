@@ -43,33 +43,24 @@ impl Lighting {
 
 /// Renders the view of `camera` at `world_from_camera` (camera frame: x
 /// right, y down, z forward).
-pub fn render(
-    world: &World,
-    camera: &PinholeCamera,
-    world_from_camera: &Pose3,
-    lighting: &Lighting,
-) -> RgbImage {
+pub fn render(world: &World, camera: &PinholeCamera, world_from_camera: &Pose3, lighting: &Lighting) -> RgbImage {
     let (w, h) = (camera.width as usize, camera.height as usize);
     let origin = Point3::from(world_from_camera.translation.vector);
     let rotation = world_from_camera.rotation;
     let gamma = gamma_table();
     let mut pixels = vec![0u8; w * h * 3];
-    pixels
-        .par_chunks_mut(w * 3)
-        .enumerate()
-        .for_each(|(row, out)| {
-            for col in 0..w {
-                let dir = rotation * camera.ray(col as f64 + 0.5, row as f64 + 0.5);
-                let colour = shade(world, &origin, &dir, lighting);
-                let key = lighting.noise_seed ^ ((row * w + col) as u64);
-                for (c, value) in colour.iter().enumerate() {
-                    let noise = quick_gaussian(mix(key.wrapping_mul(3).wrapping_add(c as u64)));
-                    let noisy = value * lighting.gain + lighting.noise * noise;
-                    out[col * 3 + c] =
-                        gamma[(noisy.clamp(0.0, 1.0) * (GAMMA_STEPS - 1) as f32) as usize];
-                }
+    pixels.par_chunks_mut(w * 3).enumerate().for_each(|(row, out)| {
+        for col in 0..w {
+            let dir = rotation * camera.ray(col as f64 + 0.5, row as f64 + 0.5);
+            let colour = shade(world, &origin, &dir, lighting);
+            let key = lighting.noise_seed ^ ((row * w + col) as u64);
+            for (c, value) in colour.iter().enumerate() {
+                let noise = quick_gaussian(mix(key.wrapping_mul(3).wrapping_add(c as u64)));
+                let noisy = value * lighting.gain + lighting.noise * noise;
+                out[col * 3 + c] = gamma[(noisy.clamp(0.0, 1.0) * (GAMMA_STEPS - 1) as f32) as usize];
             }
-        });
+        }
+    });
     RgbImage::from_raw(w as u32, h as u32, pixels).expect("buffer sized to the image")
 }
 
@@ -81,11 +72,7 @@ fn shade(world: &World, origin: &Point3, dir: &Vec3, lighting: &Lighting) -> [f3
     let p = origin + dir * hit.t;
     let albedo = albedo(surface, &p);
     // Seen from either side: light the side facing the camera.
-    let n = if surface.normal.dot(dir) > 0.0 {
-        -surface.normal
-    } else {
-        surface.normal
-    };
+    let n = if surface.normal.dot(dir) > 0.0 { -surface.normal } else { surface.normal };
     let mut light = lighting.ambient;
     for (lamp, intensity) in world.layout.lights.iter().zip(&lighting.intensities) {
         let to = Point3::from(lamp.position) - p;
@@ -122,11 +109,7 @@ pub fn albedo(surface: &Surface, p: &Point3) -> [f32; 3] {
         }
         Pattern::Panels { size_m } => {
             let (fu, fv) = ((u / size_m).rem_euclid(1.0), (v / size_m).rem_euclid(1.0));
-            if fu < 0.015 || fv < 0.015 {
-                scale(0.6)
-            } else {
-                scale(1.0)
-            }
+            if fu < 0.015 || fv < 0.015 { scale(0.6) } else { scale(1.0) }
         }
         Pattern::Stripes { period_m } => {
             if (u / period_m).rem_euclid(1.0) < 0.25 {
@@ -137,11 +120,7 @@ pub fn albedo(surface: &Surface, p: &Point3) -> [f32; 3] {
         }
         Pattern::Cardboard => {
             let tape = (u.rem_euclid(0.6) - 0.3).abs() < 0.04;
-            if tape {
-                [0.75, 0.70, 0.55]
-            } else {
-                scale(0.9 + 0.1 * value_noise(u * 10.0, v * 10.0, m.seed))
-            }
+            if tape { [0.75, 0.70, 0.55] } else { scale(0.9 + 0.1 * value_noise(u * 10.0, v * 10.0, m.seed)) }
         }
     }
 }
@@ -160,20 +139,14 @@ fn poster(seed: u64, u: f64, z: f64) -> Option<[f32; 3]> {
     if u < start || u > start + width || z < bottom || z > bottom + 0.5 + 0.2 * unit(key ^ 4) {
         return None;
     }
-    Some([
-        0.2 + 0.7 * unit(key ^ 5) as f32,
-        0.2 + 0.7 * unit(key ^ 6) as f32,
-        0.2 + 0.7 * unit(key ^ 7) as f32,
-    ])
+    Some([0.2 + 0.7 * unit(key ^ 5) as f32, 0.2 + 0.7 * unit(key ^ 6) as f32, 0.2 + 0.7 * unit(key ^ 7) as f32])
 }
 
 /// Smooth noise in -1..1 (bilinear interpolation of hashed lattice values).
 fn value_noise(x: f64, y: f64, seed: u64) -> f32 {
     let (ix, iy) = (x.floor(), y.floor());
     let (fx, fy) = (x - ix, y - iy);
-    let at = |dx: f64, dy: f64| {
-        unit(seed ^ mix(((ix + dx) as i64 as u64) << 32 ^ (iy + dy) as i64 as u64)) * 2.0 - 1.0
-    };
+    let at = |dx: f64, dy: f64| unit(seed ^ mix(((ix + dx) as i64 as u64) << 32 ^ (iy + dy) as i64 as u64)) * 2.0 - 1.0;
     let (sx, sy) = (fx * fx * (3.0 - 2.0 * fx), fy * fy * (3.0 - 2.0 * fy));
     let top = at(0.0, 0.0) * (1.0 - sx) + at(1.0, 0.0) * sx;
     let bottom = at(0.0, 1.0) * (1.0 - sx) + at(1.0, 1.0) * sx;
@@ -185,9 +158,7 @@ const GAMMA_STEPS: usize = 4096;
 /// Display gamma (1/2.2), as a camera encodes its output, tabulated: a
 /// `powf` per pixel and channel was a tenth of the rendering time.
 fn gamma_table() -> Vec<u8> {
-    (0..GAMMA_STEPS)
-        .map(|i| ((i as f32 / (GAMMA_STEPS - 1) as f32).powf(1.0 / 2.2) * 255.0 + 0.5) as u8)
-        .collect()
+    (0..GAMMA_STEPS).map(|i| ((i as f32 / (GAMMA_STEPS - 1) as f32).powf(1.0 / 2.2) * 255.0 + 0.5) as u8).collect()
 }
 
 /// An approximately standard normal value (sum of four uniforms, scaled to

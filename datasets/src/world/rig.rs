@@ -19,10 +19,7 @@ impl Default for Rig {
         Self {
             camera: PinholeCamera::kinect(),
             robot_from_camera: optical_mount(Vec3::new(0.12, 0.0, 0.45), 8f64.to_radians()),
-            robot_from_lidar: Pose3::from_parts(
-                Translation3::new(0.0, 0.0, 0.75),
-                Rot3::identity(),
-            ),
+            robot_from_lidar: Pose3::from_parts(Translation3::new(0.0, 0.0, 0.75), Rot3::identity()),
         }
     }
 }

@@ -7,16 +7,8 @@ use crate::math::{Mat3, Point3, Pose3, Rot3, Vec3};
 
 #[derive(Debug, Clone, Copy)]
 enum Piece {
-    Line {
-        from: [f64; 2],
-        to: [f64; 2],
-    },
-    Arc {
-        centre: [f64; 2],
-        radius: f64,
-        start: f64,
-        sweep: f64,
-    },
+    Line { from: [f64; 2], to: [f64; 2] },
+    Arc { centre: [f64; 2], radius: f64, start: f64, sweep: f64 },
 }
 
 impl Piece {
@@ -33,20 +25,9 @@ impl Piece {
                 let len = self.length().max(1e-12);
                 let f = s / len;
                 let heading = (to[1] - from[1]).atan2(to[0] - from[0]);
-                (
-                    [
-                        from[0] + f * (to[0] - from[0]),
-                        from[1] + f * (to[1] - from[1]),
-                    ],
-                    heading,
-                )
+                ([from[0] + f * (to[0] - from[0]), from[1] + f * (to[1] - from[1])], heading)
             }
-            Self::Arc {
-                centre,
-                radius,
-                start,
-                sweep,
-            } => {
+            Self::Arc { centre, radius, start, sweep } => {
                 let a = start + sweep.signum() * s / radius;
                 let p = [centre[0] + radius * a.cos(), centre[1] + radius * a.sin()];
                 (p, a + sweep.signum() * std::f64::consts::FRAC_PI_2)
@@ -77,8 +58,7 @@ impl Route {
             if turn.abs() < 1e-9 {
                 continue;
             }
-            let leg =
-                ((b[0] - a[0]).hypot(b[1] - a[1])).min((c[0] - b[0]).hypot(c[1] - b[1])) * 0.5;
+            let leg = ((b[0] - a[0]).hypot(b[1] - a[1])).min((c[0] - b[0]).hypot(c[1] - b[1])) * 0.5;
             let mut r = radius_m;
             let mut cut = r * (turn.abs() / 2.0).tan();
             if cut > leg {
@@ -86,27 +66,16 @@ impl Route {
                 r = cut / (turn.abs() / 2.0).tan();
             }
             let enter = [b[0] - d1[0] * cut, b[1] - d1[1] * cut];
-            pieces.push(Piece::Line {
-                from: cursor,
-                to: enter,
-            });
+            pieces.push(Piece::Line { from: cursor, to: enter });
             // The centre is to the left of the first leg for a left turn.
             let side = turn.signum();
             let normal = [-d1[1] * side, d1[0] * side];
             let centre = [enter[0] + normal[0] * r, enter[1] + normal[1] * r];
             let start = (enter[1] - centre[1]).atan2(enter[0] - centre[0]);
-            pieces.push(Piece::Arc {
-                centre,
-                radius: r,
-                start,
-                sweep: turn,
-            });
+            pieces.push(Piece::Arc { centre, radius: r, start, sweep: turn });
             cursor = [b[0] + d2[0] * cut, b[1] + d2[1] * cut];
         }
-        pieces.push(Piece::Line {
-            from: cursor,
-            to: *waypoints.last().expect("two waypoints"),
-        });
+        pieces.push(Piece::Line { from: cursor, to: *waypoints.last().expect("two waypoints") });
         let length = pieces.iter().map(Piece::length).sum();
         Self { pieces, length }
     }
@@ -145,10 +114,7 @@ pub const TRACK_M: f64 = 0.30;
 pub fn pose_on_floor(layout: &Layout, xy: [f64; 2], heading: f64) -> Option<Pose3> {
     let (c, s) = (heading.cos(), heading.sin());
     let at = |forward: f64, left: f64| {
-        let (x, y) = (
-            xy[0] + c * forward - s * left,
-            xy[1] + s * forward + c * left,
-        );
+        let (x, y) = (xy[0] + c * forward - s * left, xy[1] + s * forward + c * left);
         layout.floor_height(x, y)
     };
     let front = at(WHEELBASE_M / 2.0, 0.0)?;
@@ -161,8 +127,5 @@ pub fn pose_on_floor(layout: &Layout, xy: [f64; 2], heading: f64) -> Option<Pose
     let leftward = up.cross(&forward);
     let rotation = Rot3::from_matrix(&Mat3::from_columns(&[forward, leftward, up]));
     let z = (front + rear) / 2.0;
-    Some(Pose3::from_parts(
-        Point3::new(xy[0], xy[1], z).into(),
-        rotation,
-    ))
+    Some(Pose3::from_parts(Point3::new(xy[0], xy[1], z).into(), rotation))
 }

@@ -59,22 +59,12 @@ pub struct Surface {
 impl Surface {
     /// Builds a surface from convex vertices in either winding; `facing` says
     /// which side it is seen from, `u_hint` the preferred texture u axis.
-    pub fn new(
-        kind: SurfaceKind,
-        mut vertices: Vec<Point3>,
-        facing: Vec3,
-        u_hint: Vec3,
-        material: Material,
-    ) -> Self {
+    pub fn new(kind: SurfaceKind, mut vertices: Vec<Point3>, facing: Vec3, u_hint: Vec3, material: Material) -> Self {
         // Newell's normal of the polygon.
         let mut n = Vec3::zeros();
         for i in 0..vertices.len() {
             let (a, b) = (vertices[i], vertices[(i + 1) % vertices.len()]);
-            n += Vec3::new(
-                (a.y - b.y) * (a.z + b.z),
-                (a.z - b.z) * (a.x + b.x),
-                (a.x - b.x) * (a.y + b.y),
-            );
+            n += Vec3::new((a.y - b.y) * (a.z + b.z), (a.z - b.z) * (a.x + b.x), (a.x - b.x) * (a.y + b.y));
         }
         let mut normal = n.normalize();
         if normal.dot(&facing) < 0.0 {
@@ -92,16 +82,7 @@ impl Surface {
             .collect();
         let u = (u_hint - normal * normal.dot(&u_hint)).normalize();
         let v = normal.cross(&u);
-        Self {
-            kind,
-            normal,
-            offset,
-            vertices,
-            u_axis: u,
-            v_axis: v,
-            material,
-            edges,
-        }
+        Self { kind, normal, offset, vertices, u_axis: u, v_axis: v, material, edges }
     }
 
     /// Distance `t` along `dir` from `origin` to this surface, if the ray
@@ -128,9 +109,7 @@ impl Surface {
     /// Whether a point on (or near) the plane lies within the polygon,
     /// allowing `margin_m` outside its edges.
     pub fn contains_projection(&self, p: &Point3, margin_m: f64) -> bool {
-        self.edges
-            .iter()
-            .all(|(m, c)| m.dot(&p.coords) >= c - margin_m * m.norm())
+        self.edges.iter().all(|(m, c)| m.dot(&p.coords) >= c - margin_m * m.norm())
     }
 
     pub fn bounds(&self) -> (Point3, Point3) {

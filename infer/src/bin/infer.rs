@@ -77,9 +77,7 @@ fn load(checkpoint: &Path, backend: CpuBackend) -> Result<Detector> {
 }
 
 fn detect(args: DetectArgs) -> Result<()> {
-    let Some(checkpoint) = args.checkpoint else {
-        bail!("--checkpoint DIR is required (or use `infer eval`)")
-    };
+    let Some(checkpoint) = args.checkpoint else { bail!("--checkpoint DIR is required (or use `infer eval`)") };
     if args.images.is_empty() {
         bail!("no images given: infer --checkpoint DIR IMAGE...");
     }
@@ -90,11 +88,8 @@ fn detect(args: DetectArgs) -> Result<()> {
         }
         detector.config.detection.score_threshold = score;
     }
-    let images: Vec<DynamicImage> = args
-        .images
-        .iter()
-        .map(|p| datasets::atomic::read_image(p))
-        .collect::<Result<_, _>>()?;
+    let images: Vec<DynamicImage> =
+        args.images.iter().map(|p| datasets::atomic::read_image(p)).collect::<Result<_, _>>()?;
     let found = detector.detect_many(&images);
     let mut out = Vec::new();
     for ((path, image), detections) in args.images.iter().zip(&images).zip(found) {
@@ -105,34 +100,21 @@ fn detect(args: DetectArgs) -> Result<()> {
                 let rect = imageproc::rect::Rect::at(b.x1 as i32, b.y1 as i32)
                     .of_size(b.width().max(1.0) as u32, b.height().max(1.0) as u32);
                 let shade = (255.0 * d.score) as u8;
-                imageproc::drawing::draw_hollow_rect_mut(
-                    &mut canvas,
-                    rect,
-                    Rgb([255, 255 - shade, 0]),
-                );
+                imageproc::drawing::draw_hollow_rect_mut(&mut canvas, rect, Rgb([255, 255 - shade, 0]));
             }
             let name = path.file_stem().and_then(|s| s.to_str()).unwrap_or("image");
             let target = dir.join(format!("{name}_detections.png"));
             datasets::atomic::write_image(&target, &DynamicImage::ImageRgb8(canvas))
                 .with_context(|| format!("drawing {}", path.display()))?;
         }
-        out.push(ImageDetections {
-            image: path,
-            width: image.width(),
-            height: image.height(),
-            detections,
-        });
+        out.push(ImageDetections { image: path, width: image.width(), height: image.height(), detections });
     }
     println!("{}", serde_json::to_string_pretty(&out)?);
     Ok(())
 }
 
 fn eval(args: EvalArgs) -> Result<()> {
-    let annotations = if args.data.is_dir() {
-        args.data.join("test.json")
-    } else {
-        args.data.clone()
-    };
+    let annotations = if args.data.is_dir() { args.data.join("test.json") } else { args.data.clone() };
     let detector = load(&args.checkpoint, args.backend)?;
     let set = infer::labeled::load_coco_set(&annotations, &detector.config.preprocess)?;
     let m = infer::eval::evaluate_set(&detector, &set, 8);
@@ -147,22 +129,12 @@ fn eval(args: EvalArgs) -> Result<()> {
         );
     } else {
         println!("checkpoint   {}", args.checkpoint.display());
-        println!(
-            "test set     {} ({} images, {} corners)",
-            annotations.display(),
-            m.images,
-            m.ground_truths
-        );
+        println!("test set     {} ({} images, {} corners)", annotations.display(), m.images, m.ground_truths);
         println!("AP@0.5       {:.4}", m.ap50);
-        println!(
-            "precision    {:.4}  (score >= {})",
-            m.precision, m.operating_score
-        );
+        println!("precision    {:.4}  (score >= {})", m.precision, m.operating_score);
         println!("recall       {:.4}", m.recall);
-        println!(
-            "pixel error  {:.2} px (mean, true positives)",
-            m.mean_pixel_error
-        );
+        let error = m.mean_pixel_error.map_or("none found".to_string(), |e| format!("{e:.2} px"));
+        println!("pixel error  {error} (mean over true positives)");
     }
     Ok(())
 }

@@ -59,14 +59,7 @@ struct Figures {
 }
 
 fn main() -> Result<()> {
-    let Command::Detectors {
-        backend,
-        width,
-        batch,
-        steps,
-        only,
-        json,
-    } = Cli::parse().command;
+    let Command::Detectors { backend, width, batch, steps, only, json } = Cli::parse().command;
     if let Some(backbone) = only {
         let f = measure(backbone, backend, width, batch, steps)?;
         println!("{}", serde_json::to_string(&f)?);
@@ -74,28 +67,13 @@ fn main() -> Result<()> {
     }
     let exe = std::env::current_exe()?;
     if !json {
-        println!(
-            "| backbone | backend | width | train img/s | infer ms/img | peak RSS MB | parameters |"
-        );
+        println!("| backbone | backend | width | train img/s | infer ms/img | peak RSS MB | parameters |");
         println!("|---|---|---|---|---|---|---|");
     }
     for backbone in [Backbone::FasterRcnn, Backbone::Vgg16, Backbone::Alexnet] {
         let out = std::process::Command::new(&exe)
-            .args([
-                "detectors",
-                "--backend",
-                &format!("{backend:?}").to_lowercase(),
-                "--width",
-                &width.to_string(),
-            ])
-            .args([
-                "--batch",
-                &batch.to_string(),
-                "--steps",
-                &steps.to_string(),
-                "--only",
-                backbone.name(),
-            ])
+            .args(["detectors", "--backend", &format!("{backend:?}").to_lowercase(), "--width", &width.to_string()])
+            .args(["--batch", &batch.to_string(), "--steps", &steps.to_string(), "--only", backbone.name()])
             .output()
             .context("running a benchmark child")?;
         if !out.status.success() {
@@ -109,13 +87,7 @@ fn main() -> Result<()> {
         let f: Figures = serde_json::from_str(line.trim())?;
         println!(
             "| {} | {:?} | {} | {:.2} | {:.1} | {:.0} | {} |",
-            f.backbone,
-            f.backend,
-            f.width,
-            f.train_images_per_s,
-            f.infer_ms_per_image,
-            f.peak_rss_mb,
-            f.parameters
+            f.backbone, f.backend, f.width, f.train_images_per_s, f.infer_ms_per_image, f.peak_rss_mb, f.parameters
         );
     }
     Ok(())
@@ -127,11 +99,7 @@ fn synthetic_batch(config: &DetectorConfig, batch: usize, device: &Device) -> Ba
     let edges: Vec<GrayImage> = (0..batch)
         .map(|i| {
             GrayImage::from_fn(size, size, |x, y| {
-                if (x * 7 + y * 13 + i as u32 * 31) % 17 == 0 {
-                    image::Luma([255])
-                } else {
-                    image::Luma([0])
-                }
+                if (x * 7 + y * 13 + i as u32 * 31).is_multiple_of(17) { image::Luma([255]) } else { image::Luma([0]) }
             })
         })
         .collect();
@@ -145,19 +113,10 @@ fn synthetic_batch(config: &DetectorConfig, batch: usize, device: &Device) -> Ba
                 .collect()
         })
         .collect();
-    Batch {
-        inputs: infer::detector::input_tensor(&edges, device),
-        boxes,
-    }
+    Batch { inputs: infer::detector::input_tensor(&edges, device), boxes }
 }
 
-fn measure(
-    backbone: Backbone,
-    backend: CpuBackend,
-    width: f32,
-    batch: usize,
-    steps: usize,
-) -> Result<Figures> {
+fn measure(backbone: Backbone, backend: CpuBackend, width: f32, batch: usize, steps: usize) -> Result<Figures> {
     let config = DetectorConfig::new(backbone, width);
     let device = backend.device().autodiff();
     let mut network = Network::new(&config, &device);

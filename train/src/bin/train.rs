@@ -82,14 +82,11 @@ fn main() -> Result<()> {
     println!(
         "final train loss {:.4}{}; test AP@0.5 {:.3}, precision {:.3}, recall {:.3}, pixel error {:.2} px; {:.0} s; run in {}",
         summary.final_train_loss,
-        summary
-            .final_valid_loss
-            .map(|v| format!(", valid loss {v:.4}"))
-            .unwrap_or_default(),
+        summary.final_valid_loss.map(|v| format!(", valid loss {v:.4}")).unwrap_or_default(),
         m.ap50,
         m.precision,
         m.recall,
-        m.mean_pixel_error,
+        m.mean_pixel_error.unwrap_or(f64::NAN),
         summary.seconds,
         run.display()
     );
