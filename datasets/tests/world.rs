@@ -73,7 +73,8 @@ fn labels_project_onto_their_corners_and_see_them() {
             assert_eq!(a.corner_type.as_deref(), Some(best.kind.name()));
             // The box is centred on the point unless the image edge clipped it.
             let c = a.bbox();
-            if c.width() == 48.0 && c.height() == 48.0 {
+            let side = config.labels.box_size_px;
+            if c.width() == side && c.height() == side {
                 assert!((c.centre()[0] - point[0]).abs() < 1e-3 && (c.centre()[1] - point[1]).abs() < 1e-3);
             }
             // Nothing hides the corner: along the ray through the labeled

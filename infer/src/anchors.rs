@@ -18,8 +18,9 @@ pub struct AnchorConfig {
 
 impl Default for AnchorConfig {
     fn default() -> Self {
-        // Corner boxes are 48 px in a 640x480 image: 17 x 22 px in the 224 x 224 input.
-        Self { sizes: vec![16.0, 24.0, 40.0], aspect_ratios: vec![0.75, 1.0, 1.5] }
+        // Corner boxes are 96 px squares in a 640x480 image: 34 x 45 px (height
+        // / width 1.33) in the 224 x 224 input.
+        Self { sizes: vec![32.0, 40.0, 56.0], aspect_ratios: vec![1.0, 1.3, 1.7] }
     }
 }
 

@@ -118,7 +118,9 @@ impl Default for RoiConfig {
             sampling_ratio: 2,
             fg_iou: 0.5,
             bg_iou: 0.5,
-            batch_size_per_image: 128,
+            // An image holds about six corners: 64 RoIs (at most 16 positive)
+            // cover them at half the head's cost of torchvision's 128.
+            batch_size_per_image: 64,
             positive_fraction: 0.25,
             box_weights: [10.0, 10.0, 5.0, 5.0],
         }

@@ -127,10 +127,19 @@ fn clipping_and_small_box_removal_match() {
 
 #[test]
 fn roi_align_matches_for_boxes_inside_the_map() {
+    roi_align_matches_on(Device::flex());
+}
+
+/// Under autodiff, `grid_sample_2d` runs Burn's reference composition.
+#[test]
+fn roi_align_matches_under_autodiff() {
+    roi_align_matches_on(Device::flex().autodiff());
+}
+
+fn roi_align_matches_on(device: Device) {
     let f = fixture();
     let r = &f["roi_align"];
     let shape: Vec<usize> = indices(&r["shape"]);
-    let device = Device::flex();
     let map =
         Tensor::<4>::from_data(TensorData::new(floats(&r["features"]), [1, shape[0], shape[1], shape[2]]), &device);
     let rois = boxes(&r["rois"]);

@@ -13,7 +13,10 @@ use crate::math::{Point3, Pose3};
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct LabelConfig {
-    /// Side of the square box around a corner, in image pixels.
+    /// Side of the square box around a corner, in image pixels. 96 px (34 x
+    /// 45 px in the 224 x 224 network input) gives the box two to three cells
+    /// of a stride-16 feature map: the lines that meet at a corner, not just
+    /// the point, which a region-based detector needs.
     pub box_size_px: f32,
     /// Corners farther than this (depth along the optical axis) are not labeled.
     pub max_depth_m: f64,
@@ -21,7 +24,7 @@ pub struct LabelConfig {
 
 impl Default for LabelConfig {
     fn default() -> Self {
-        Self { box_size_px: 48.0, max_depth_m: 10.0 }
+        Self { box_size_px: 96.0, max_depth_m: 10.0 }
     }
 }
 
