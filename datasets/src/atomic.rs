@@ -44,6 +44,31 @@ pub fn write_image(path: &Path, image: &image::DynamicImage) -> Result<()> {
     write_bytes(path, bytes.get_ref())
 }
 
+/// Writes a folder atomically: `fill` populates a temporary sibling folder,
+/// which then replaces `dir` (an existing `dir` is removed only after the new
+/// one is complete).
+pub fn write_dir<E: From<DataError>>(
+    dir: &Path,
+    fill: impl FnOnce(&Path) -> std::result::Result<(), E>,
+) -> std::result::Result<(), E> {
+    let parent = match dir.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    std::fs::create_dir_all(parent).map_err(|e| DataError::io(parent, e))?;
+    let tmp = tempfile::Builder::new().prefix(".tmp-dir-").tempdir_in(parent).map_err(|e| DataError::io(parent, e))?;
+    fill(tmp.path())?;
+    let name = dir.file_name().and_then(|n| n.to_str()).unwrap_or("dir");
+    let old = parent.join(format!(".old-{name}"));
+    if dir.exists() {
+        let _ = std::fs::remove_dir_all(&old);
+        std::fs::rename(dir, &old).map_err(|e| DataError::io(dir, e))?;
+    }
+    std::fs::rename(tmp.keep(), dir).map_err(|e| DataError::io(dir, e))?;
+    let _ = std::fs::remove_dir_all(&old);
+    Ok(())
+}
+
 /// Reads a whole file, naming it in the error.
 pub fn read_bytes(path: &Path) -> Result<Vec<u8>> {
     std::fs::read(path).map_err(|e| DataError::io(path, e))

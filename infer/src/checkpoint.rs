@@ -52,31 +52,20 @@ pub fn save(
     network: &Network,
     meta: &CheckpointMeta,
 ) -> Result<(), CheckpointError> {
-    let parent = dir.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    std::fs::create_dir_all(parent).map_err(|e| datasets::DataError::io(parent, e))?;
-    let tmp = tempfile::Builder::new()
-        .prefix(".tmp-checkpoint-")
-        .tempdir_in(parent)
-        .map_err(|e| datasets::DataError::io(parent, e))?;
-    datasets::atomic::write_json(&tmp.path().join(CONFIG_FILE), config)?;
-    datasets::atomic::write_json(&tmp.path().join(META_FILE), meta)?;
-    let weights = tmp.path().join(WEIGHTS_STEM);
+    datasets::atomic::write_dir(dir, |tmp| {
+        datasets::atomic::write_json(&tmp.join(CONFIG_FILE), config)?;
+        datasets::atomic::write_json(&tmp.join(META_FILE), meta)?;
+        save_weights(network, &tmp.join(WEIGHTS_STEM))
+    })
+}
+
+/// Writes `stem.bpk`.
+pub fn save_weights(network: &Network, stem: &Path) -> Result<(), CheckpointError> {
     let result = match network {
-        Network::FasterRcnn(m) => m.clone().save_file(&weights),
-        Network::Grid(m) => m.clone().save_file(&weights),
+        Network::FasterRcnn(m) => m.clone().save_file(stem),
+        Network::Grid(m) => m.clone().save_file(stem),
     };
-    result.map_err(|e| CheckpointError::Invalid { path: weights.with_extension("bpk"), message: e.to_string() })?;
-    let kept = tmp.keep();
-    if dir.exists() {
-        let old = parent.join(format!(".old-{}", dir.file_name().and_then(|n| n.to_str()).unwrap_or("checkpoint")));
-        let _ = std::fs::remove_dir_all(&old);
-        std::fs::rename(dir, &old).map_err(|e| datasets::DataError::io(dir, e))?;
-        std::fs::rename(&kept, dir).map_err(|e| datasets::DataError::io(dir, e))?;
-        let _ = std::fs::remove_dir_all(&old);
-    } else {
-        std::fs::rename(&kept, dir).map_err(|e| datasets::DataError::io(dir, e))?;
-    }
-    Ok(())
+    result.map_err(|e| CheckpointError::Invalid { path: stem.with_extension("bpk"), message: e.to_string() })
 }
 
 pub fn read_config(dir: &Path) -> Result<DetectorConfig, CheckpointError> {

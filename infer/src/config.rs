@@ -79,6 +79,23 @@ pub struct RpnConfig {
     pub min_size: f32,
 }
 
+impl RpnConfig {
+    /// Proposal settings while training (`true`) or testing.
+    pub fn proposals(&self, training: bool) -> crate::faster_rcnn::ProposalSettings {
+        let (pre_nms_top_n, post_nms_top_n) = if training {
+            (self.pre_nms_top_n_train, self.post_nms_top_n_train)
+        } else {
+            (self.pre_nms_top_n_test, self.post_nms_top_n_test)
+        };
+        crate::faster_rcnn::ProposalSettings {
+            pre_nms_top_n,
+            post_nms_top_n,
+            nms_iou: self.nms_iou,
+            min_size: self.min_size,
+        }
+    }
+}
+
 impl Default for RpnConfig {
     fn default() -> Self {
         Self {

@@ -5,7 +5,7 @@ use burn::prelude::*;
 
 use crate::boxes::{BBox, batched_nms};
 use crate::config::{Backbone, DetectorConfig};
-use crate::faster_rcnn::{self, FasterRcnn, ProposalSettings};
+use crate::faster_rcnn::{self, FasterRcnn};
 use crate::grid_net::{CELL_VALUES, GridNet};
 
 // One network lives per process; boxing the larger variant would buy nothing.
@@ -59,12 +59,7 @@ impl Network {
                 let objectness = crate::host(rpn.objectness);
                 let deltas = crate::host(rpn.deltas);
                 let anchors = faster_rcnn::anchors_for(&config.anchors, rpn.grid_h, rpn.grid_w);
-                let settings = ProposalSettings {
-                    pre_nms_top_n: config.rpn.pre_nms_top_n_test,
-                    post_nms_top_n: config.rpn.post_nms_top_n_test,
-                    nms_iou: config.rpn.nms_iou,
-                    min_size: config.rpn.min_size,
-                };
+                let settings = config.rpn.proposals(false);
                 let proposals: Vec<Vec<BBox>> = (0..b)
                     .map(|i| {
                         faster_rcnn::proposals(

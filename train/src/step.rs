@@ -10,7 +10,7 @@ use crate::targets::{grid_targets, roi_targets, rpn_targets};
 use infer::boxes::BBox;
 use infer::config::DetectorConfig;
 use infer::detector::input_tensor;
-use infer::faster_rcnn::{self, ProposalSettings};
+use infer::faster_rcnn;
 use infer::labeled::LabeledImage;
 use infer::network::Network;
 
@@ -54,12 +54,7 @@ pub fn batch_losses(network: &Network, config: &DetectorConfig, batch: &Batch, r
                 batch.boxes.iter().map(|truth| rpn_targets(&anchors, truth, &config.rpn, rng)).collect();
             let objectness = infer::host(rpn.objectness.clone());
             let deltas = infer::host(rpn.deltas.clone());
-            let settings = ProposalSettings {
-                pre_nms_top_n: config.rpn.pre_nms_top_n_train,
-                post_nms_top_n: config.rpn.post_nms_top_n_train,
-                nms_iou: config.rpn.nms_iou,
-                min_size: config.rpn.min_size,
-            };
+            let settings = config.rpn.proposals(true);
             let roi_t: Vec<_> = (0..b)
                 .map(|i| {
                     let proposals = faster_rcnn::proposals(

@@ -12,12 +12,11 @@
 //! - `metrics.json`: AP@0.5, precision, recall, pixel error on the test split.
 
 use std::fmt::Write as _;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use burn::grad_clipping::GradientClippingConfig;
-use burn::module::Module;
 use burn::optim::decay::WeightDecayConfig;
 use burn::optim::momentum::MomentumConfig;
 use burn::optim::{AdamWConfig, GradientsParams, ModuleOptimizer, SgdConfig};
@@ -81,7 +80,7 @@ fn optimizer(config: &TrainConfig) -> ModuleOptimizer {
 }
 
 /// One optimizer step on whichever network it is.
-fn apply(network: Network, optim: &mut ModuleOptimizer, lr: f64, grads: burn::tensor::Gradients) -> Network {
+pub fn apply(network: Network, optim: &mut ModuleOptimizer, lr: f64, grads: burn::tensor::Gradients) -> Network {
     match network {
         Network::FasterRcnn(m) => {
             let g = GradientsParams::from_grads(grads, &m);
@@ -92,14 +91,6 @@ fn apply(network: Network, optim: &mut ModuleOptimizer, lr: f64, grads: burn::te
             Network::Grid(optim.step(lr, m, g))
         }
     }
-}
-
-fn save_network(network: &Network, stem: &Path) -> Result<()> {
-    let r = match network {
-        Network::FasterRcnn(m) => m.clone().save_file(stem),
-        Network::Grid(m) => m.clone().save_file(stem),
-    };
-    r.with_context(|| format!("writing {}", stem.display()))
 }
 
 fn csv_header(backbone: Backbone) -> String {
@@ -330,15 +321,10 @@ fn validation_loss(network: &Network, config: &TrainConfig, valid: &[&LabeledIma
 
 /// Writes the resume state atomically (a new folder renamed into place).
 fn save_resume(dir: &Path, network: &Network, optim: &ModuleOptimizer, state: &ResumeState) -> Result<()> {
-    let parent = dir.parent().unwrap_or(Path::new("."));
-    let tmp = tempfile::Builder::new().prefix(".tmp-resume-").tempdir_in(parent)?;
-    save_network(network, &tmp.path().join(checkpoint::WEIGHTS_STEM))?;
-    optim.save(tmp.path().join(OPTIMIZER_STEM)).context("writing the optimizer state")?;
-    datasets::atomic::write_json(&tmp.path().join(STATE_FILE), state)?;
-    let kept: PathBuf = tmp.keep();
-    if dir.exists() {
-        std::fs::remove_dir_all(dir).with_context(|| format!("replacing {}", dir.display()))?;
-    }
-    std::fs::rename(&kept, dir).with_context(|| format!("writing {}", dir.display()))?;
-    Ok(())
+    datasets::atomic::write_dir(dir, |tmp| -> Result<()> {
+        checkpoint::save_weights(network, &tmp.join(checkpoint::WEIGHTS_STEM))?;
+        optim.save(tmp.join(OPTIMIZER_STEM)).context("writing the optimizer state")?;
+        datasets::atomic::write_json(&tmp.join(STATE_FILE), state)?;
+        Ok(())
+    })
 }

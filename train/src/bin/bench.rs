@@ -125,17 +125,7 @@ fn measure(backbone: Backbone, backend: CpuBackend, width: f32, batch: usize, st
     let mut rng = ChaCha8Rng::seed_from_u64(1);
     let mut step = |network: Network| -> Network {
         let losses = batch_losses(&network, &config, &data, &mut rng);
-        let grads = losses.total.backward();
-        match network {
-            Network::FasterRcnn(m) => {
-                let g = burn::optim::GradientsParams::from_grads(grads, &m);
-                Network::FasterRcnn(optim.step(1e-4, m, g))
-            }
-            Network::Grid(m) => {
-                let g = burn::optim::GradientsParams::from_grads(grads, &m);
-                Network::Grid(optim.step(1e-4, m, g))
-            }
-        }
+        train::trainer::apply(network, &mut optim, 1e-4, losses.total.backward())
     };
     network = step(network);
     let started = Instant::now();
