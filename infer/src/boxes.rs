@@ -56,10 +56,6 @@ pub fn batched_nms(boxes: &[BBox], scores: &[f32], classes: &[usize], iou_thresh
     keep
 }
 
-pub fn clip_to_image(b: &BBox, width: f32, height: f32) -> BBox {
-    b.clip(width, height)
-}
-
 /// Indices of the boxes at least `min_size` wide and high.
 pub fn remove_small(boxes: &[BBox], min_size: f32) -> Vec<usize> {
     (0..boxes.len()).filter(|&i| boxes[i].width() >= min_size && boxes[i].height() >= min_size).collect()

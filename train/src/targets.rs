@@ -173,7 +173,7 @@ pub fn grid_targets(truth: &[BBox], cells: usize, input_size: f32) -> GridTarget
     t
 }
 
-/// A random draw in 0..1, for augmentation decisions.
+/// A fair coin toss, for augmentation decisions.
 pub fn coin(rng: &mut ChaCha8Rng) -> bool {
     rng.random_bool(0.5)
 }

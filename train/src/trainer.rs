@@ -248,7 +248,7 @@ pub fn train_until(
             &optim,
             &ResumeState { epochs_done: epoch + 1, elapsed_s: elapsed, csv: csv.clone() },
         )?;
-        let meta = meta_for(&config, &network, epoch + 1, elapsed, None);
+        let meta = meta_for(&config, &network, epoch + 1, elapsed);
         checkpoint::save(&run.join(CHECKPOINT_DIR), det, &network, &meta)?;
         if stop_after == Some(epoch + 1) {
             return Ok(None);
@@ -256,7 +256,7 @@ pub fn train_until(
     }
 
     // Final evaluation on the test split.
-    let meta = meta_for(&config, &network, config.epochs, elapsed, None);
+    let meta = meta_for(&config, &network, config.epochs, elapsed);
     let detector = Detector::from_network(det.clone(), meta.clone(), &network, inner.clone());
     let metrics = eval::evaluate_set(&detector, &test, config.batch_size);
     datasets::atomic::write_json(&run.join(METRICS_FILE), &metrics)?;
@@ -280,20 +280,15 @@ fn row(values: &[f64], lr: f64, elapsed: f64) -> String {
     format!("{},{lr:.6e},{elapsed:.2}", parts.join(","))
 }
 
-fn meta_for(
-    config: &TrainConfig,
-    network: &Network,
-    epochs: usize,
-    seconds: f64,
-    metrics: Option<EvalMetrics>,
-) -> CheckpointMeta {
+/// Checkpoint metadata without metrics (added after the final evaluation).
+fn meta_for(config: &TrainConfig, network: &Network, epochs: usize, seconds: f64) -> CheckpointMeta {
     CheckpointMeta {
         format_version: checkpoint::FORMAT_VERSION,
         backbone: config.detector.backbone,
         width: config.detector.width,
         dataset: config.data.display().to_string(),
         epochs,
-        metrics,
+        metrics: None,
         pretrained: None,
         train_seconds: seconds,
         parameters: network.num_params(),
