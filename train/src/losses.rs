@@ -121,11 +121,14 @@ pub fn head_losses(head: &HeadOutput, targets: &[RoiTargets]) -> (Tensor<1>, Ten
 pub fn faster_rcnn_losses(
     rpn: &RpnOutput,
     rpn_targets: &[RpnTargets],
-    head: &HeadOutput,
+    head: Option<&HeadOutput>,
     roi_targets: &[RoiTargets],
 ) -> Losses {
     let (objectness, rpn_box) = rpn_losses(rpn, rpn_targets);
-    let (classifier, box_loss) = head_losses(head, roi_targets);
+    let (classifier, box_loss) = match head {
+        Some(head) => head_losses(head, roi_targets),
+        None => (zero(&objectness.device()), zero(&objectness.device())),
+    };
     Losses::new(vec![
         ("rpn_objectness", objectness),
         ("rpn_box", rpn_box),

@@ -69,8 +69,9 @@ pub fn batch_losses(network: &Network, config: &DetectorConfig, batch: &Batch, r
                 })
                 .collect();
             let rois: Vec<Vec<BBox>> = roi_t.iter().map(|t| t.rois.clone()).collect();
-            let head = m.head(features, &rois);
-            faster_rcnn_losses(&rpn, &rpn_t, &head, &roi_t)
+            // A batch without corners and without proposals has no RoIs: no head loss then.
+            let head = rois.iter().any(|r| !r.is_empty()).then(|| m.head(features, &rois));
+            faster_rcnn_losses(&rpn, &rpn_t, head.as_ref(), &roi_t)
         }
         Network::Grid(m) => {
             let out = m.forward(batch.inputs.clone());
