@@ -1,1 +1,20 @@
-//! Localization (filled by the localization issue).
+//! Localization: planes and 3D corners from LIDAR scans, 2D corners from the
+//! detector cast into them, corner landmarks, the pose that aligns them with
+//! an odometry/IMU prior, and trajectory metrics.
+
+pub mod config;
+pub mod corner_source;
+pub mod corners;
+pub mod ekf;
+pub mod error;
+pub mod eval;
+pub mod fusion;
+pub mod geometry;
+pub mod landmarks;
+pub mod levels;
+pub mod normals;
+pub mod pipeline;
+pub mod planes;
+pub mod pose;
+pub mod run;
+pub mod sequence;

@@ -1,0 +1,257 @@
+//! `localize`: run localization on a recorded sequence, extract the planes and
+//! corners of one cloud, or evaluate a trajectory against ground truth.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result};
+use clap::{Parser, Subcommand};
+use datasets::formats::read_trajectory;
+use localize::config::LocalizeConfig;
+use localize::corner_source::CornerSource;
+use localize::eval::{Alignment, ErrorSummary, compare};
+use localize::levels::LevelMap;
+use localize::run::{metrics, run_sequence, write_outputs};
+use localize::sequence::RecordedSequence;
+
+#[derive(Parser)]
+#[command(name = "localize", about = "Corner-fusion localization: camera corners + LIDAR planes")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Compares an estimated trajectory with ground truth (TUM, KITTI or EuRoC, detected from the content).
+    Eval(EvalArgs),
+    /// Localizes a recorded sequence: trajectory, per-frame log and, with ground truth, metrics and a picture.
+    Run(RunArgs),
+    /// Prints the planes and 3D corners of one point cloud (PCD, PLY or KITTI .bin).
+    Planes(PlanesArgs),
+}
+
+#[derive(clap::Args)]
+struct RunArgs {
+    /// The sequence folder (cloud/, rgb/, odom.csv, imu.csv, calib.json[, groundtruth.txt]).
+    #[arg(long)]
+    sequence: PathBuf,
+    /// The detector checkpoint folder.
+    #[arg(long, default_value = "checkpoints/faster-rcnn")]
+    checkpoint: PathBuf,
+    #[arg(long)]
+    out: PathBuf,
+    /// Settings as JSON (any subset of the sections; see config.json of a run).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Instead of the detector, take the 2D corners from this COCO file's
+    /// ground-truth points plus Gaussian noise (for testing the geometry apart
+    /// from the detector; never the default).
+    #[arg(long)]
+    corners_from_labels: Option<PathBuf>,
+    #[arg(long, default_value_t = 2.0)]
+    label_noise_px: f64,
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    #[arg(long, value_enum, default_value_t = infer::backend::CpuBackend::Flex)]
+    backend: infer::backend::CpuBackend,
+}
+
+#[derive(clap::Args)]
+struct PlanesArgs {
+    cloud: PathBuf,
+    /// Print one JSON object instead of a table.
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(clap::Args)]
+struct EvalArgs {
+    /// Ground-truth trajectory.
+    #[arg(long)]
+    gt: PathBuf,
+    /// Estimated trajectory.
+    #[arg(long)]
+    est: PathBuf,
+    /// Alignment of the estimate onto the ground truth before errors are taken.
+    #[arg(long, value_enum, default_value_t = Alignment::None)]
+    align: Alignment,
+    /// Largest timestamp difference (s) of an associated pair.
+    #[arg(long, default_value_t = 0.01)]
+    max_diff: f64,
+    /// The world description that says where the levels are; by default the
+    /// `world.json` beside the ground truth, when there is one.
+    #[arg(long)]
+    world: Option<PathBuf>,
+    /// Print one JSON object instead of a table.
+    #[arg(long)]
+    json: bool,
+}
+
+fn main() {
+    let cli = Cli::parse();
+    let outcome = match cli.command {
+        Command::Eval(args) => eval(&args),
+        Command::Planes(args) => planes(&args),
+        Command::Run(args) => run(&args),
+    };
+    if let Err(error) = outcome {
+        eprintln!("error: {error:#}");
+        std::process::exit(1);
+    }
+}
+
+fn world_beside(gt: &Path) -> Option<PathBuf> {
+    let candidate = gt.parent()?.join("world.json");
+    candidate.is_file().then_some(candidate)
+}
+
+fn eval(args: &EvalArgs) -> Result<()> {
+    let (gt, _) = read_trajectory(&args.gt)?;
+    let (est, _) = read_trajectory(&args.est)?;
+    if !(args.max_diff >= 0.0 && args.max_diff.is_finite()) {
+        anyhow::bail!("--max-diff must be a finite number >= 0, got {}", args.max_diff);
+    }
+    let comparison = compare(&gt, &est, args.align, args.max_diff)
+        .with_context(|| format!("comparing {} with {}", args.est.display(), args.gt.display()))?;
+    let world = args.world.clone().or_else(|| world_beside(&args.gt));
+    let levels = match &world {
+        Some(path) => LevelMap::read(path)?.per_segment(&comparison, &gt),
+        None => Vec::new(),
+    };
+    let s = comparison.summary;
+    if args.json {
+        let mut object = serde_json::to_value(s)?;
+        object["align"] = serde_json::to_value(args.align)?;
+        object["scale"] = comparison.alignment.scale.into();
+        object["levels"] = levels
+            .iter()
+            .map(|(name, summary)| {
+                let mut v = serde_json::to_value(summary).expect("plain numbers");
+                v["name"] = name.clone().into();
+                v
+            })
+            .collect();
+        println!("{object}");
+    } else {
+        println!("matched poses: {} (alignment {:?}, scale {:.6})", s.matched, args.align, comparison.alignment.scale);
+        println!(
+            "{:<10} {:>8} {:>10} {:>10} {:>10} {:>10}",
+            "segment", "poses", "rmse_x", "rmse_y", "rmse_z", "ate_rmse"
+        );
+        let row = |name: &str, s: &ErrorSummary| {
+            println!(
+                "{name:<10} {:>8} {:>10.6} {:>10.6} {:>10.6} {:>10.6}",
+                s.matched, s.rmse_x, s.rmse_y, s.rmse_z, s.ate_rmse
+            )
+        };
+        for (name, summary) in &levels {
+            row(name, summary);
+        }
+        row("all", &s);
+        println!("ate: mean {:.6} median {:.6} max {:.6}", s.ate_mean, s.ate_median, s.ate_max);
+    }
+    Ok(())
+}
+
+fn planes(args: &PlanesArgs) -> Result<()> {
+    let cloud = datasets::formats::read_cloud(&args.cloud, datasets::formats::NonFinite::Drop)?;
+    let geometry = localize::geometry::GeometryStages::new(&localize::config::LocalizeConfig::default())?;
+    let sensor = cloud.viewpoint.translation.vector;
+    let result = geometry.run(&cloud.points, &sensor).with_context(|| format!("{}", args.cloud.display()))?;
+    if args.json {
+        let planes: Vec<serde_json::Value> = result
+            .planes
+            .planes
+            .iter()
+            .map(|p| {
+                serde_json::json!({
+                    "normal": [p.normal.x, p.normal.y, p.normal.z],
+                    "distance": p.distance,
+                    "inliers": p.inliers.len(),
+                    "rms": p.rms_m,
+                })
+            })
+            .collect();
+        let corners: Vec<serde_json::Value> = result
+            .corners
+            .corners
+            .iter()
+            .map(|c| serde_json::json!({"position": [c.position.x, c.position.y, c.position.z], "planes": c.planes}))
+            .collect();
+        let edges: Vec<serde_json::Value> = result
+            .corners
+            .edges
+            .iter()
+            .map(|e| {
+                serde_json::json!({
+                    "point": [e.point.x, e.point.y, e.point.z],
+                    "direction": [e.direction.x, e.direction.y, e.direction.z],
+                    "planes": e.planes,
+                    "angle_deg": e.angle_deg,
+                })
+            })
+            .collect();
+        println!(
+            "{}",
+            serde_json::json!({"points": cloud.len(), "planes": planes, "corners": corners, "edges": edges})
+        );
+    } else {
+        println!("{}: {} points ({} non-finite dropped)", args.cloud.display(), cloud.len(), cloud.dropped_non_finite);
+        println!("{:>3} {:>28} {:>9} {:>8} {:>7}", "#", "normal", "distance", "inliers", "rms");
+        for (k, p) in result.planes.planes.iter().enumerate() {
+            println!(
+                "{k:>3} [{:>7.3} {:>7.3} {:>7.3}] {:>9.3} {:>8} {:>7.3}",
+                p.normal.x,
+                p.normal.y,
+                p.normal.z,
+                p.distance,
+                p.inliers.len(),
+                p.rms_m
+            );
+        }
+        println!("corners:");
+        for c in &result.corners.corners {
+            println!("  [{:>7.3} {:>7.3} {:>7.3}] planes {:?}", c.position.x, c.position.y, c.position.z, c.planes);
+        }
+        for e in &result.corners.edges {
+            println!("edge between planes {:?} at {:.1} deg", e.planes, e.angle_deg);
+        }
+    }
+    Ok(())
+}
+
+fn run(args: &RunArgs) -> Result<()> {
+    let config: LocalizeConfig = match &args.config {
+        Some(path) => {
+            let text = datasets::atomic::read_text(path)?;
+            serde_json::from_str(&text).with_context(|| format!("{}: not a localization config", path.display()))?
+        }
+        None => LocalizeConfig::default(),
+    };
+    let sequence = RecordedSequence::open(&args.sequence)?;
+    let mut source = match &args.corners_from_labels {
+        Some(labels) => CornerSource::labels(labels, args.label_noise_px, args.seed)?,
+        None => CornerSource::detector(&args.checkpoint, args.backend.device(), config.fusion.min_score)?,
+    };
+    let result = run_sequence(&sequence, &mut source, &config, !std::env::var("CI").is_ok_and(|v| v == "true"))?;
+    let metrics = metrics(&sequence, &result)?;
+    write_outputs(&args.out, &config, &result, metrics.as_ref())?;
+    println!("wrote {}", args.out.join("trajectory.txt").display());
+    if let Some(m) = metrics {
+        println!("{} frames, {} fused, {:.1} ms per frame", m.frames, m.fused_frames, m.mean_total_ms);
+        println!("{:<22} {:>8} {:>8} {:>8} {:>8}", "", "rmse_x", "rmse_y", "rmse_z", "ate");
+        for (name, t) in [("fused", &m.fused), ("odometry/IMU", &m.odometry_imu)] {
+            for (level, s) in t.levels.iter().map(|(n, s)| (n.as_str(), s)).chain([("all", &t.overall)]) {
+                println!(
+                    "{:<22} {:>8.4} {:>8.4} {:>8.4} {:>8.4}",
+                    format!("{name} {level}"),
+                    s.rmse_x,
+                    s.rmse_y,
+                    s.rmse_z,
+                    s.ate_rmse
+                );
+            }
+        }
+    }
+    Ok(())
+}

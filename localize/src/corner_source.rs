@@ -1,0 +1,84 @@
+//! Where a frame's 2D corners come from: the trained detector (the default),
+//! or, behind a flag, the ground-truth projections of `labels.json` with
+//! seeded pixel noise, to test the rest of the pipeline apart from the detector.
+
+use std::collections::HashMap;
+use std::path::Path;
+use std::time::Instant;
+
+use image::DynamicImage;
+use infer::detector::Detector;
+use rand::rngs::ChaCha8Rng;
+use rand::{RngExt, SeedableRng};
+
+use crate::error::{LocalizeError, Result};
+
+pub enum CornerSource {
+    Detector { detector: Box<Detector>, min_score: f32 },
+    Labels { by_image: HashMap<String, Vec<[f64; 2]>>, noise_px: f64, rng: Box<ChaCha8Rng> },
+}
+
+impl CornerSource {
+    pub fn detector(checkpoint: &Path, device: burn::prelude::Device, min_score: f32) -> Result<Self> {
+        let detector = Detector::load(checkpoint, device)
+            .map_err(|e| LocalizeError::Detector { path: checkpoint.to_path_buf(), message: e.to_string() })?;
+        Ok(Self::Detector { detector: Box::new(detector), min_score })
+    }
+
+    /// Corner pixels from a COCO file with `point`s, by image file stem.
+    pub fn labels(path: &Path, noise_px: f64, seed: u64) -> Result<Self> {
+        let coco = datasets::formats::read_coco(path)?;
+        let mut by_image: HashMap<String, Vec<[f64; 2]>> = HashMap::new();
+        let names: HashMap<u64, String> = coco
+            .images
+            .iter()
+            .map(|im| {
+                let stem = Path::new(&im.file_name).file_stem().and_then(|s| s.to_str()).unwrap_or_default();
+                (im.id, stem.to_string())
+            })
+            .collect();
+        for a in &coco.annotations {
+            let (Some(p), Some(name)) = (a.point, names.get(&a.image_id)) else { continue };
+            by_image.entry(name.clone()).or_default().push([p[0] as f64, p[1] as f64]);
+        }
+        Ok(Self::Labels { by_image, noise_px, rng: Box::new(ChaCha8Rng::seed_from_u64(seed)) })
+    }
+
+    /// The corners of one frame (image file stem `stem`) and the milliseconds taken.
+    pub fn corners(
+        &mut self,
+        stem: &str,
+        image: Option<&DynamicImage>,
+    ) -> (std::result::Result<Vec<[f64; 2]>, String>, f64) {
+        let start = Instant::now();
+        let found = match self {
+            Self::Detector { detector, min_score } => match image {
+                Some(im) => Ok(detector
+                    .detect(im)
+                    .into_iter()
+                    .filter(|d| d.score >= *min_score)
+                    .map(|d| {
+                        let [x, y] = d.bbox.centre();
+                        [x as f64, y as f64]
+                    })
+                    .collect()),
+                None => Err("no image".to_string()),
+            },
+            Self::Labels { by_image, noise_px, rng } => {
+                let points = by_image.get(stem).cloned().unwrap_or_default();
+                Ok(points
+                    .into_iter()
+                    .map(|[x, y]| [x + *noise_px * gaussian(rng), y + *noise_px * gaussian(rng)])
+                    .collect())
+            }
+        };
+        (found, start.elapsed().as_secs_f64() * 1e3)
+    }
+}
+
+/// A standard normal draw (Box-Muller).
+fn gaussian(rng: &mut ChaCha8Rng) -> f64 {
+    let u1: f64 = rng.random::<f64>().max(1e-300);
+    let u2: f64 = rng.random();
+    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+}

@@ -1,0 +1,239 @@
+//! The odometry/IMU reference: an extended Kalman filter that dead-reckons
+//! the robot's 3D pose from the IMU's angular rate and the wheels' forward
+//! speed, levels roll and pitch with the accelerometer's gravity, and
+//! estimates the gyro's biases and the wheels' speed scale. Gravity makes the
+//! roll and pitch rate biases observable; the yaw-rate bias and the scale only
+//! pose corrections (the corner fusion) make observable.
+//!
+//! State: position (3, world), roll, pitch, yaw (ZYX Euler, world from robot),
+//! gyro bias (3, rad/s, body), wheel speed scale (1 = exact).
+
+use datasets::formats::{ImuSample, OdometrySample};
+use datasets::math::{Pose3, Rot3, Vec3};
+use nalgebra::{SMatrix, SVector};
+use serde::{Deserialize, Serialize};
+
+pub const STATES: usize = 10;
+/// Index of the wheel speed scale in the state.
+pub const SCALE: usize = 9;
+pub type State = SVector<f64, STATES>;
+pub type Covariance = SMatrix<f64, STATES, STATES>;
+
+const GRAVITY: f64 = 9.80665;
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EkfConfig {
+    /// Gyro white noise (rad/s per sample).
+    pub gyro_noise_rps: f64,
+    /// Wheel speed white noise (m/s per sample).
+    pub speed_noise_mps: f64,
+    /// Random walk of the gyro bias (rad/s per sqrt(s)) and the speed scale (1/sqrt(s)).
+    pub bias_walk: f64,
+    pub scale_walk: f64,
+    /// Prior standard deviations of the bias and the scale.
+    pub initial_bias_rps: f64,
+    pub initial_scale: f64,
+    /// Standard deviation of roll/pitch read from the accelerometer, used
+    /// only while the specific force is within `gravity_gate` of g.
+    pub gravity_sigma_rad: f64,
+    pub gravity_gate_mps2: f64,
+}
+
+impl Default for EkfConfig {
+    fn default() -> Self {
+        Self {
+            gyro_noise_rps: 0.003,
+            speed_noise_mps: 0.003,
+            bias_walk: 1e-5,
+            scale_walk: 1e-4,
+            initial_bias_rps: 0.005,
+            initial_scale: 0.05,
+            gravity_sigma_rad: 0.01,
+            gravity_gate_mps2: 0.3,
+        }
+    }
+}
+
+pub fn rotation(roll: f64, pitch: f64, yaw: f64) -> Rot3 {
+    Rot3::from_euler_angles(roll, pitch, yaw)
+}
+
+/// Wraps an angle to (-pi, pi].
+pub fn wrap(a: f64) -> f64 {
+    let w = a.rem_euclid(std::f64::consts::TAU);
+    if w > std::f64::consts::PI { w - std::f64::consts::TAU } else { w }
+}
+
+#[derive(Debug, Clone)]
+pub struct Ekf {
+    pub config: EkfConfig,
+    pub x: State,
+    pub p: Covariance,
+    pub time: f64,
+}
+
+impl Ekf {
+    /// Starts at `start` (the world frame is the robot's start pose) at `time`.
+    pub fn new(config: EkfConfig, start: &Pose3, time: f64) -> Self {
+        let (roll, pitch, yaw) = start.rotation.euler_angles();
+        let t = start.translation.vector;
+        let x = State::from_column_slice(&[t.x, t.y, t.z, roll, pitch, yaw, 0.0, 0.0, 0.0, 1.0]);
+        let mut p = Covariance::zeros();
+        for k in 0..6 {
+            p[(k, k)] = 1e-8;
+        }
+        for k in 6..9 {
+            p[(k, k)] = config.initial_bias_rps.powi(2);
+        }
+        p[(SCALE, SCALE)] = config.initial_scale.powi(2);
+        Self { config, x, p, time }
+    }
+
+    pub fn pose(&self) -> Pose3 {
+        pose_of(&self.x)
+    }
+
+    /// Propagates by `dt` with the body angular rate `gyro` and wheel speed `speed`.
+    pub fn predict(&mut self, gyro: &Vec3, speed: f64, dt: f64) {
+        if dt <= 0.0 {
+            return;
+        }
+        let f = |x: &State| propagate(x, gyro, speed, dt);
+        // The model is smooth and the state small: a central-difference
+        // Jacobian is exact enough and cannot get a sign wrong.
+        let mut jacobian = Covariance::zeros();
+        for k in 0..STATES {
+            let h = if k == SCALE { 1e-6 } else { 1e-7 };
+            let (mut plus, mut minus) = (self.x, self.x);
+            plus[k] += h;
+            minus[k] -= h;
+            let mut d = (f(&plus) - f(&minus)) / (2.0 * h);
+            for a in 3..6 {
+                d[a] = wrap(d[a] * 2.0 * h) / (2.0 * h);
+            }
+            jacobian.set_column(k, &d);
+        }
+        let c = &self.config;
+        let mut q = Covariance::zeros();
+        let sv = (c.speed_noise_mps * dt).powi(2);
+        let sg = (c.gyro_noise_rps * dt).powi(2);
+        for k in 0..3 {
+            q[(k, k)] = sv;
+            q[(3 + k, 3 + k)] = sg;
+        }
+        for k in 6..9 {
+            q[(k, k)] = c.bias_walk.powi(2) * dt;
+        }
+        q[(SCALE, SCALE)] = c.scale_walk.powi(2) * dt;
+        self.x = f(&self.x);
+        self.p = jacobian * self.p * jacobian.transpose() + q;
+        self.time += dt;
+    }
+
+    /// Levels roll and pitch with the accelerometer's specific force, when
+    /// the robot is not accelerating much.
+    pub fn update_gravity(&mut self, accel: &Vec3) {
+        let c = &self.config;
+        if (accel.norm() - GRAVITY).abs() > c.gravity_gate_mps2 {
+            return;
+        }
+        let roll = accel.y.atan2(accel.z);
+        let pitch = (-accel.x).atan2((accel.y * accel.y + accel.z * accel.z).sqrt());
+        let mut h = SMatrix::<f64, 2, STATES>::zeros();
+        h[(0, 3)] = 1.0;
+        h[(1, 4)] = 1.0;
+        let residual = nalgebra::Vector2::new(wrap(roll - self.x[3]), wrap(pitch - self.x[4]));
+        let r = nalgebra::Matrix2::identity() * c.gravity_sigma_rad.powi(2);
+        self.update(&h, &residual, &r);
+    }
+
+    /// A standard Kalman update with residual `z - h(x)` already formed.
+    pub fn update<const M: usize>(
+        &mut self,
+        h: &SMatrix<f64, M, STATES>,
+        residual: &SVector<f64, M>,
+        r: &SMatrix<f64, M, M>,
+    ) {
+        let s = h * self.p * h.transpose() + r;
+        let Some(s_inv) = s.try_inverse() else { return };
+        let gain = self.p * h.transpose() * s_inv;
+        self.x += gain * residual;
+        normalise(&mut self.x);
+        // Joseph form keeps P symmetric and positive.
+        let i_kh = Covariance::identity() - gain * h;
+        self.p = i_kh * self.p * i_kh.transpose() + gain * r * gain.transpose();
+    }
+}
+
+fn normalise(x: &mut State) {
+    for k in 3..6 {
+        x[k] = wrap(x[k]);
+    }
+}
+
+pub fn pose_of(x: &State) -> Pose3 {
+    Pose3::from_parts(Vec3::new(x[0], x[1], x[2]).into(), rotation(x[3], x[4], x[5]))
+}
+
+/// The motion model: attitude integrates the bias-corrected gyro rate in the
+/// body frame; position moves along the body's x axis at the scaled wheel
+/// speed (midpoint attitude).
+pub fn propagate(x: &State, gyro: &Vec3, speed: f64, dt: f64) -> State {
+    let r0 = rotation(x[3], x[4], x[5]);
+    let rate = gyro - Vec3::new(x[6], x[7], x[8]);
+    let step = Rot3::from_scaled_axis(rate * dt);
+    let r1 = r0 * step;
+    let mid = r0 * Rot3::from_scaled_axis(rate * dt * 0.5);
+    let velocity = mid * Vec3::new(x[SCALE] * speed, 0.0, 0.0);
+    let (roll, pitch, yaw) = r1.euler_angles();
+    let mut out = *x;
+    out[0] += velocity.x * dt;
+    out[1] += velocity.y * dt;
+    out[2] += velocity.z * dt;
+    out[3] = roll;
+    out[4] = pitch;
+    out[5] = yaw;
+    out
+}
+
+/// Drives an EKF through the odometry and IMU logs, one frame time at a time.
+pub struct SensorReplay<'a> {
+    odometry: &'a [OdometrySample],
+    imu: &'a [ImuSample],
+    next_imu: usize,
+}
+
+impl<'a> SensorReplay<'a> {
+    /// Replays the logs from `start` on (earlier samples are skipped).
+    pub fn new(odometry: &'a [OdometrySample], imu: &'a [ImuSample], start: f64) -> Self {
+        let next_imu = imu.partition_point(|s| s.timestamp <= start);
+        Self { odometry, imu, next_imu }
+    }
+
+    /// Wheel speed at time t: an odometry sample reports the mean speed over
+    /// the period that ends at its stamp, so the first sample at or after t.
+    fn speed_at(&self, t: f64) -> f64 {
+        let k = self.odometry.partition_point(|s| s.timestamp < t);
+        self.odometry.get(k).or(self.odometry.last()).map_or(0.0, |s| s.v)
+    }
+
+    /// Advances the filter to `time`, integrating every IMU sample up to it.
+    pub fn advance(&mut self, ekf: &mut Ekf, time: f64) {
+        while self.next_imu < self.imu.len() && self.imu[self.next_imu].timestamp <= time {
+            let sample = self.imu[self.next_imu];
+            let gyro = Vec3::from(sample.gyro);
+            let dt = sample.timestamp - ekf.time;
+            let speed = self.speed_at(ekf.time + 0.5 * dt.max(0.0));
+            ekf.predict(&gyro, speed, dt);
+            ekf.update_gravity(&Vec3::from(sample.accel));
+            self.next_imu += 1;
+        }
+        if time > ekf.time {
+            // Hold the last rate up to the frame time.
+            let last = self.next_imu.checked_sub(1).map(|k| Vec3::from(self.imu[k].gyro)).unwrap_or_default();
+            let speed = self.speed_at(ekf.time);
+            ekf.predict(&last, speed, time - ekf.time);
+        }
+    }
+}

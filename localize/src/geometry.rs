@@ -1,0 +1,59 @@
+//! The LIDAR half of a frame: normals, planes and 3D corners of one cloud.
+
+use std::time::Instant;
+
+use datasets::math::Vec3;
+use nalgebra::Point3;
+
+use crate::config::LocalizeConfig;
+use crate::corners::{CornerExtractor, CornerSet};
+use crate::error::{LocalizeError, Result};
+use crate::normals::{NormalEstimator, build_tree};
+use crate::planes::{PlaneExtractor, PlaneSet};
+
+pub struct GeometryStages {
+    normals: NormalEstimator,
+    planes: PlaneExtractor,
+    corners: CornerExtractor,
+}
+
+/// What the geometry stages found, with the milliseconds each took.
+pub struct Geometry {
+    pub planes: PlaneSet,
+    pub corners: CornerSet,
+    pub normals_ms: f64,
+    pub planes_ms: f64,
+    pub corners_ms: f64,
+}
+
+fn ms_since(start: Instant) -> f64 {
+    start.elapsed().as_secs_f64() * 1e3
+}
+
+impl GeometryStages {
+    pub fn new(config: &LocalizeConfig) -> Result<Self> {
+        Ok(Self {
+            normals: NormalEstimator::new(config.normals.clone())?,
+            planes: PlaneExtractor::new(config.planes.clone())?,
+            corners: CornerExtractor::new(config.corners.clone())?,
+        })
+    }
+
+    /// `points` in the sensor's frame, `sensor` its origin there.
+    pub fn run(&self, points: &[Point3<f32>], sensor: &Vec3) -> Result<Geometry> {
+        if points.is_empty() {
+            return Err(LocalizeError::Cloud("no finite points".into()));
+        }
+        let start = Instant::now();
+        let tree = build_tree(points);
+        let normals = self.normals.estimate(points, &tree, sensor)?;
+        let normals_ms = ms_since(start);
+        let start = Instant::now();
+        let planes = self.planes.extract(points, &normals);
+        let planes_ms = ms_since(start);
+        let start = Instant::now();
+        let corners = self.corners.extract(&planes, points, &tree, sensor);
+        let corners_ms = ms_since(start);
+        Ok(Geometry { planes, corners, normals_ms, planes_ms, corners_ms })
+    }
+}

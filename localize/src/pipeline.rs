@@ -1,0 +1,197 @@
+//! The per-frame pipeline: a thin loop over the stages. For each frame the
+//! odometry/IMU filter is advanced to the frame's time, the cloud gives
+//! planes and 3D corners, the image gives 2D corners, the fused corners are
+//! associated with the landmark map and correct the filter, and the map
+//! grows with them.
+
+use std::time::Instant;
+
+use datasets::formats::{Calibration, PointCloud};
+use datasets::math::{Pose3, Vec3};
+
+use crate::config::LocalizeConfig;
+use crate::ekf::Ekf;
+use crate::error::Result;
+use crate::fusion::CornerFusion;
+use crate::geometry::GeometryStages;
+use crate::landmarks::LandmarkMap;
+use crate::pose::{Correspondence, PoseSolver};
+
+/// How a frame's pose was obtained, written to the per-frame log.
+#[derive(Debug, Clone, PartialEq)]
+pub enum FrameStatus {
+    /// Corrected by this many landmark correspondences.
+    Fused(usize),
+    /// The first frame: the map starts at the reference pose.
+    FirstFrame,
+    /// Kept the odometry/IMU pose: too few correspondences.
+    TooFewMatches(usize),
+    /// Kept the odometry/IMU pose: no 2D corners (no image, or it failed).
+    NoImage(String),
+    /// Kept the odometry/IMU pose: the cloud was unusable.
+    BadCloud(String),
+}
+
+impl FrameStatus {
+    pub fn label(&self) -> String {
+        match self {
+            Self::Fused(n) => format!("fused {n}"),
+            Self::FirstFrame => "first frame: map starts at the reference".into(),
+            Self::TooFewMatches(n) => format!("fallback: {n} correspondences"),
+            Self::NoImage(why) => format!("fallback: no 2D corners ({why})"),
+            Self::BadCloud(why) => format!("fallback: bad cloud ({why})"),
+        }
+    }
+}
+
+/// Everything logged about one frame.
+#[derive(Debug, Clone)]
+pub struct FrameReport {
+    pub stamp: f64,
+    pub pose: Pose3,
+    pub status: FrameStatus,
+    pub detections: usize,
+    pub planes: usize,
+    pub corners: usize,
+    pub matches: usize,
+    pub correspondences: usize,
+    pub landmarks: usize,
+    pub detect_ms: f64,
+    pub normals_ms: f64,
+    pub planes_ms: f64,
+    pub corners_ms: f64,
+    pub fusion_ms: f64,
+    pub pose_ms: f64,
+    pub total_ms: f64,
+}
+
+pub struct Localizer {
+    geometry: GeometryStages,
+    fusion: CornerFusion,
+    solver: PoseSolver,
+    pub map: LandmarkMap,
+    calibration: Calibration,
+    frames_seen: usize,
+}
+
+impl Localizer {
+    pub fn new(config: &LocalizeConfig, calibration: Calibration) -> Result<Self> {
+        Ok(Self {
+            geometry: GeometryStages::new(config)?,
+            fusion: CornerFusion::new(config.fusion.clone())?,
+            solver: PoseSolver::new(config.pose.clone()),
+            map: LandmarkMap::new(config.landmarks.clone()),
+            calibration,
+            frames_seen: 0,
+        })
+    }
+
+    pub fn min_score(&self) -> f32 {
+        self.fusion.min_score()
+    }
+
+    /// Processes one frame whose filter has been advanced to its time;
+    /// `pixels` are the detected 2D corners (or why there are none),
+    /// `detect_ms` the detector's time. The filter holds the fused pose after.
+    pub fn process(
+        &mut self,
+        stamp: f64,
+        ekf: &mut Ekf,
+        cloud: std::result::Result<PointCloud, String>,
+        pixels: std::result::Result<Vec<[f64; 2]>, String>,
+        detect_ms: f64,
+    ) -> FrameReport {
+        let start = Instant::now();
+        let first = self.frames_seen == 0;
+        self.frames_seen += 1;
+        let mut report = FrameReport {
+            stamp,
+            pose: ekf.pose(),
+            status: FrameStatus::FirstFrame,
+            detections: pixels.as_ref().map_or(0, Vec::len),
+            planes: 0,
+            corners: 0,
+            matches: 0,
+            correspondences: 0,
+            landmarks: self.map.landmarks.len(),
+            detect_ms,
+            normals_ms: 0.0,
+            planes_ms: 0.0,
+            corners_ms: 0.0,
+            fusion_ms: 0.0,
+            pose_ms: 0.0,
+            total_ms: 0.0,
+        };
+        let finish = |mut report: FrameReport, ekf: &Ekf, status: FrameStatus| {
+            report.pose = ekf.pose();
+            report.status = status;
+            report.total_ms = detect_ms + start.elapsed().as_secs_f64() * 1e3;
+            report
+        };
+        let cloud = match cloud {
+            Ok(c) if c.is_empty() => return finish(report, ekf, FrameStatus::BadCloud("no finite points".into())),
+            Ok(c) => c,
+            Err(why) => return finish(report, ekf, FrameStatus::BadCloud(why)),
+        };
+        let sensor = cloud.viewpoint.translation.vector;
+        let geometry = match self.geometry.run(&cloud.points, &sensor) {
+            Ok(g) => g,
+            Err(e) => return finish(report, ekf, FrameStatus::BadCloud(e.to_string())),
+        };
+        report.normals_ms = geometry.normals_ms;
+        report.planes_ms = geometry.planes_ms;
+        report.corners_ms = geometry.corners_ms;
+        report.planes = geometry.planes.planes.len();
+        report.corners = geometry.corners.corners.len();
+        let pixels = match pixels {
+            Ok(p) => p,
+            Err(why) => return finish(report, ekf, FrameStatus::NoImage(why)),
+        };
+        let fusion_start = Instant::now();
+        let lidar_from_camera = self.calibration.camera_from_lidar.inverse();
+        let matches = self.fusion.fuse(
+            &pixels,
+            &self.calibration.camera,
+            &lidar_from_camera,
+            &geometry.planes,
+            &geometry.corners,
+            &cloud.points,
+        );
+        report.matches = matches.len();
+        let in_robot: Vec<Vec3> = matches
+            .iter()
+            .map(|m| self.calibration.robot_from_lidar * nalgebra::Point3::from(m.position))
+            .map(|p| p.coords)
+            .collect();
+        let predicted = ekf.pose();
+        let in_world: Vec<Vec3> = in_robot.iter().map(|c| (predicted * nalgebra::Point3::from(*c)).coords).collect();
+        let association = self.map.associate(&in_world);
+        let correspondences: Vec<Correspondence> = in_robot
+            .iter()
+            .zip(&association)
+            .filter_map(|(c, a)| {
+                a.filter(|&k| self.map.is_trusted(k))
+                    .map(|k| Correspondence { in_robot: *c, in_world: self.map.landmarks[k].position })
+            })
+            .collect();
+        report.fusion_ms = fusion_start.elapsed().as_secs_f64() * 1e3;
+        report.correspondences = correspondences.len();
+        let pose_start = Instant::now();
+        let status = if first {
+            FrameStatus::FirstFrame
+        } else {
+            match self.solver.correct(ekf, &correspondences) {
+                Some(_) => FrameStatus::Fused(correspondences.len()),
+                None => FrameStatus::TooFewMatches(correspondences.len()),
+            }
+        };
+        // The map grows with the corners placed by the corrected pose.
+        let corrected = ekf.pose();
+        let in_world: Vec<Vec3> = in_robot.iter().map(|c| (corrected * nalgebra::Point3::from(*c)).coords).collect();
+        let association = self.map.associate(&in_world);
+        self.map.observe(&in_world, &association);
+        report.pose_ms = pose_start.elapsed().as_secs_f64() * 1e3;
+        report.landmarks = self.map.landmarks.len();
+        finish(report, ekf, status)
+    }
+}

@@ -1,0 +1,168 @@
+//! `localize run`: a recorded sequence in, the fused trajectory, the
+//! odometry/IMU reference, the per-frame log and (with ground truth) the
+//! metrics out.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use datasets::formats::{NonFinite, Trajectory, read_cloud, write_tum};
+use indicatif::{ProgressBar, ProgressStyle};
+use serde::Serialize;
+
+use crate::config::LocalizeConfig;
+use crate::corner_source::CornerSource;
+use crate::ekf::{Ekf, SensorReplay};
+use crate::error::Result;
+use crate::eval::{Alignment, ErrorSummary, compare};
+use crate::levels::LevelMap;
+use crate::pipeline::{FrameReport, Localizer};
+use crate::sequence::RecordedSequence;
+
+pub struct RunResult {
+    /// The fused trajectory (world from robot).
+    pub trajectory: Trajectory,
+    /// Odometry/IMU alone: the same filter without corner corrections.
+    pub reference: Trajectory,
+    pub frames: Vec<FrameReport>,
+}
+
+pub fn run_sequence(
+    sequence: &RecordedSequence,
+    source: &mut CornerSource,
+    config: &LocalizeConfig,
+    show_progress: bool,
+) -> Result<RunResult> {
+    let mut localizer = Localizer::new(config, sequence.calibration.clone())?;
+    let start_time = sequence.frames[0].stamp;
+    // The world frame is the robot's pose at the first frame.
+    let start = datasets::math::Pose3::identity();
+    let mut fused = Ekf::new(config.ekf.clone(), &start, start_time);
+    let mut dead_reckoning = Ekf::new(config.ekf.clone(), &start, start_time);
+    let mut replay = SensorReplay::new(&sequence.odometry, &sequence.imu, start_time);
+    let mut replay_reference = SensorReplay::new(&sequence.odometry, &sequence.imu, start_time);
+    let bar = if show_progress { ProgressBar::new(sequence.frames.len() as u64) } else { ProgressBar::hidden() };
+    bar.set_style(
+        ProgressStyle::with_template("{prefix} [{elapsed_precise}] {bar:30} {pos}/{len} frames {msg}")
+            .expect("static template"),
+    );
+    bar.set_prefix("localize");
+    let mut result =
+        RunResult { trajectory: Trajectory::default(), reference: Trajectory::default(), frames: Vec::new() };
+    for frame in &sequence.frames {
+        replay.advance(&mut fused, frame.stamp);
+        replay_reference.advance(&mut dead_reckoning, frame.stamp);
+        let cloud = read_cloud(&frame.cloud, NonFinite::Drop).map_err(|e| e.to_string());
+        let stem = frame.cloud.file_stem().and_then(|s| s.to_str()).unwrap_or_default().to_string();
+        let image = match &frame.image {
+            Some(path) => datasets::atomic::read_image(path).map_err(|e| e.to_string()),
+            None => Err(format!("no image for timestamp {stem}")),
+        };
+        let (pixels, detect_ms) = match (&image, &mut *source) {
+            (Err(why), CornerSource::Detector { .. }) => (Err(why.clone()), 0.0),
+            (image, source) => source.corners(&stem, image.as_ref().ok()),
+        };
+        let report = localizer.process(frame.stamp, &mut fused, cloud, pixels, detect_ms);
+        bar.set_message(report.status.label());
+        bar.inc(1);
+        result.trajectory.push(frame.stamp, report.pose);
+        result.reference.push(frame.stamp, dead_reckoning.pose());
+        result.frames.push(report);
+    }
+    bar.finish();
+    Ok(result)
+}
+
+/// The errors of one trajectory against the ground truth.
+#[derive(Debug, Clone, Serialize)]
+pub struct TrajectoryMetrics {
+    pub overall: ErrorSummary,
+    pub levels: Vec<(String, ErrorSummary)>,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct RunMetrics {
+    pub fused: TrajectoryMetrics,
+    pub odometry_imu: TrajectoryMetrics,
+    pub frames: usize,
+    pub fused_frames: usize,
+    pub mean_total_ms: f64,
+}
+
+pub fn metrics(sequence: &RecordedSequence, result: &RunResult) -> Result<Option<RunMetrics>> {
+    let Some(truth) = &sequence.ground_truth else { return Ok(None) };
+    let world = sequence.dir.join("world.json");
+    let levels = if world.is_file() { Some(LevelMap::read(&world)?) } else { None };
+    let measure = |estimate: &Trajectory| -> Option<TrajectoryMetrics> {
+        let comparison = compare(truth, estimate, Alignment::None, 0.01).ok()?;
+        let per_level = levels.as_ref().map(|l| l.per_segment(&comparison, truth)).unwrap_or_default();
+        Some(TrajectoryMetrics { overall: comparison.summary, levels: per_level })
+    };
+    let (Some(fused), Some(odometry_imu)) = (measure(&result.trajectory), measure(&result.reference)) else {
+        return Ok(None);
+    };
+    let n = result.frames.len().max(1) as f64;
+    Ok(Some(RunMetrics {
+        fused,
+        odometry_imu,
+        frames: result.frames.len(),
+        fused_frames: result
+            .frames
+            .iter()
+            .filter(|f| matches!(f.status, crate::pipeline::FrameStatus::Fused(_)))
+            .count(),
+        mean_total_ms: result.frames.iter().map(|f| f.total_ms).sum::<f64>() / n,
+    }))
+}
+
+pub const FRAME_COLUMNS: &str = "timestamp,x,y,z,status,detections,planes,corners,matches,correspondences,landmarks,\
+detect_ms,normals_ms,planes_ms,corners_ms,fusion_ms,pose_ms,total_ms";
+
+pub fn frames_csv(frames: &[FrameReport]) -> String {
+    let mut out = String::from(FRAME_COLUMNS);
+    out.push('\n');
+    for f in frames {
+        let t = f.pose.translation.vector;
+        let _ = writeln!(
+            out,
+            "{:.6},{:.4},{:.4},{:.4},{},{},{},{},{},{},{},{:.1},{:.1},{:.1},{:.1},{:.1},{:.1},{:.1}",
+            f.stamp,
+            t.x,
+            t.y,
+            t.z,
+            f.status.label().replace(',', ";"),
+            f.detections,
+            f.planes,
+            f.corners,
+            f.matches,
+            f.correspondences,
+            f.landmarks,
+            f.detect_ms,
+            f.normals_ms,
+            f.planes_ms,
+            f.corners_ms,
+            f.fusion_ms,
+            f.pose_ms,
+            f.total_ms
+        );
+    }
+    out
+}
+
+/// Writes `trajectory.txt`, `reference.txt`, `frames.csv`, `config.json` and,
+/// with ground truth, `metrics.json` (every file atomically).
+pub fn write_outputs(
+    out: &Path,
+    config: &LocalizeConfig,
+    result: &RunResult,
+    metrics: Option<&RunMetrics>,
+) -> Result<()> {
+    std::fs::create_dir_all(out).map_err(|e| datasets::DataError::io(out, e))?;
+    write_tum(&out.join("trajectory.txt"), &result.trajectory)?;
+    write_tum(&out.join("reference.txt"), &result.reference)?;
+    datasets::atomic::write_bytes(&out.join("frames.csv"), frames_csv(&result.frames).as_bytes())?;
+    datasets::atomic::write_json(&out.join("config.json"), config)?;
+    if let Some(m) = metrics {
+        datasets::atomic::write_json(&out.join("metrics.json"), m)?;
+    }
+    Ok(())
+}

@@ -1,0 +1,109 @@
+//! A recorded sequence with problems: errors that name the file, or an
+//! explicit per-frame fallback, never a panic.
+
+use std::path::Path;
+
+use datasets::camera::PinholeCamera;
+use datasets::formats::{
+    Calibration, CocoDataset, ImuSample, OdometrySample, PcdData, PointCloud, write_calibration, write_coco, write_imu,
+    write_odometry,
+};
+use datasets::math::Pose3;
+use localize::config::LocalizeConfig;
+use localize::corner_source::CornerSource;
+use localize::pipeline::FrameStatus;
+use localize::run::run_sequence;
+use localize::sequence::RecordedSequence;
+use nalgebra::Point3;
+
+fn box_room() -> PointCloud {
+    // A 6 x 4 x 3 m room around the sensor, a point every 10 cm on each face.
+    let mut points = Vec::new();
+    let steps = |a: f32, b: f32| ((a * 10.0) as i32..=(b * 10.0) as i32).map(|k| k as f32 / 10.0);
+    for u in steps(-3.0, 3.0) {
+        for v in steps(-2.0, 2.0) {
+            points.push(Point3::new(u, v, -1.0));
+        }
+        for w in steps(-1.0, 2.0) {
+            points.push(Point3::new(u, -2.0, w));
+            points.push(Point3::new(u, 2.0, w));
+        }
+    }
+    for v in steps(-2.0, 2.0) {
+        for w in steps(-1.0, 2.0) {
+            points.push(Point3::new(-3.0, v, w));
+            points.push(Point3::new(3.0, v, w));
+        }
+    }
+    PointCloud::new(points, None)
+}
+
+/// A still robot: three frames, logs, calibration, no images.
+fn write_sequence(dir: &Path) {
+    std::fs::create_dir_all(dir.join("cloud")).unwrap();
+    for t in ["0.000000", "1.000000", "2.000000"] {
+        datasets::formats::write_pcd(&dir.join("cloud").join(format!("{t}.pcd")), &box_room(), PcdData::Binary)
+            .unwrap();
+    }
+    let calib = Calibration {
+        camera: PinholeCamera { width: 640, height: 480, fx: 525.0, fy: 525.0, cx: 319.5, cy: 239.5 },
+        camera_from_lidar: Pose3::identity(),
+        robot_from_lidar: Pose3::identity(),
+    };
+    write_calibration(&dir.join("calib.json"), &calib).unwrap();
+    let odometry: Vec<OdometrySample> = (0..30)
+        .map(|k| OdometrySample { timestamp: k as f64 * 0.1, x: 0.0, y: 0.0, yaw: 0.0, v: 0.0, omega: 0.0 })
+        .collect();
+    write_odometry(&dir.join("odom.csv"), &odometry).unwrap();
+    let imu: Vec<ImuSample> = (0..150)
+        .map(|k| ImuSample { timestamp: k as f64 * 0.02, accel: [0.0, 0.0, 9.80665], gyro: [0.0; 3] })
+        .collect();
+    write_imu(&dir.join("imu.csv"), &imu).unwrap();
+    let labels = CocoDataset { info: None, images: vec![], annotations: vec![], categories: vec![] };
+    write_coco(&dir.join("labels.json"), &labels).unwrap();
+}
+
+#[test]
+fn a_corrupt_cloud_is_a_per_frame_fallback_and_the_run_goes_on() {
+    let dir = tempfile::tempdir().unwrap();
+    write_sequence(dir.path());
+    std::fs::write(dir.path().join("cloud/1.000000.pcd"), b"VERSION 0.7\nFIELDS x y\n").unwrap();
+    let sequence = RecordedSequence::open(dir.path()).unwrap();
+    assert!(sequence.frames.iter().all(|f| f.image.is_none()));
+    let mut source = CornerSource::labels(&dir.path().join("labels.json"), 0.0, 1).unwrap();
+    let result = run_sequence(&sequence, &mut source, &LocalizeConfig::default(), false).unwrap();
+    assert_eq!(result.trajectory.len(), 3);
+    assert_eq!(result.frames[0].status, FrameStatus::FirstFrame);
+    assert!(matches!(&result.frames[1].status, FrameStatus::BadCloud(why) if why.contains("1.000000.pcd")));
+    assert_eq!(result.frames[2].status, FrameStatus::TooFewMatches(0));
+    assert_eq!(result.frames[2].planes, 5, "floor and four walls");
+    // A still robot stays where it started.
+    for pose in &result.trajectory.poses {
+        assert!(pose.translation.vector.norm() < 1e-6);
+    }
+}
+
+#[test]
+fn duplicate_timestamps_and_bad_names_are_errors_naming_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    write_sequence(dir.path());
+    std::fs::copy(dir.path().join("cloud/1.000000.pcd"), dir.path().join("cloud/1.0.pcd")).unwrap();
+    let error = RecordedSequence::open(dir.path()).err().expect("duplicate stamp");
+    assert!(error.to_string().contains("duplicate timestamp 1"), "{error}");
+    std::fs::remove_file(dir.path().join("cloud/1.0.pcd")).unwrap();
+    std::fs::copy(dir.path().join("cloud/1.000000.pcd"), dir.path().join("cloud/frame.pcd")).unwrap();
+    let error = RecordedSequence::open(dir.path()).err().expect("bad name");
+    assert!(error.to_string().contains("frame.pcd") && error.to_string().contains("not a timestamp"), "{error}");
+}
+
+#[test]
+fn a_calibration_that_does_not_parse_is_an_error_naming_it() {
+    let dir = tempfile::tempdir().unwrap();
+    write_sequence(dir.path());
+    std::fs::write(dir.path().join("calib.json"), b"{\"camera\": 3}").unwrap();
+    let error = RecordedSequence::open(dir.path()).err().expect("bad calibration");
+    assert!(error.to_string().contains("calib.json"), "{error}");
+    std::fs::remove_file(dir.path().join("calib.json")).unwrap();
+    let error = RecordedSequence::open(dir.path()).err().expect("missing calibration");
+    assert!(error.to_string().contains("calib.json"), "{error}");
+}
