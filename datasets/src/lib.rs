@@ -12,6 +12,7 @@ pub mod error;
 pub mod formats;
 pub mod generate;
 pub mod math;
+pub mod plot;
 pub mod preprocess;
 pub mod world;
 

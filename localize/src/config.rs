@@ -9,6 +9,7 @@ use crate::ekf::EkfConfig;
 use crate::fusion::FusionConfig;
 use crate::landmarks::LandmarkConfig;
 use crate::normals::NormalConfig;
+use crate::plane_landmarks::PlaneLandmarkConfig;
 use crate::planes::PlaneConfig;
 use crate::pose::PoseConfig;
 
@@ -20,6 +21,7 @@ pub struct LocalizeConfig {
     pub corners: CornerConfig,
     pub fusion: FusionConfig,
     pub landmarks: LandmarkConfig,
+    pub plane_landmarks: PlaneLandmarkConfig,
     pub pose: PoseConfig,
     pub ekf: EkfConfig,
 }

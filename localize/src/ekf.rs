@@ -1,21 +1,25 @@
 //! The odometry/IMU reference: an extended Kalman filter that dead-reckons
 //! the robot's 3D pose from the IMU's angular rate and the wheels' forward
 //! speed, levels roll and pitch with the accelerometer's gravity, and
-//! estimates the gyro's biases and the wheels' speed scale. Gravity makes the
-//! roll and pitch rate biases observable; the yaw-rate bias and the scale only
-//! pose corrections (the corner fusion) make observable.
+//! estimates the gyro's biases, the wheels' speed scale and the
+//! accelerometer's horizontal biases. Gravity makes the roll and pitch rate
+//! biases observable; the yaw-rate bias, the scale and the accelerometer
+//! biases (which tilt the gravity reading) only pose corrections do.
 //!
 //! State: position (3, world), roll, pitch, yaw (ZYX Euler, world from robot),
-//! gyro bias (3, rad/s, body), wheel speed scale (1 = exact).
+//! gyro bias (3, rad/s, body), wheel speed scale (1 = exact), accelerometer
+//! bias along body x and y (m/s^2).
 
 use datasets::formats::{ImuSample, OdometrySample};
 use datasets::math::{Pose3, Rot3, Vec3};
 use nalgebra::{SMatrix, SVector};
 use serde::{Deserialize, Serialize};
 
-pub const STATES: usize = 10;
+pub const STATES: usize = 12;
 /// Index of the wheel speed scale in the state.
 pub const SCALE: usize = 9;
+/// Index of the accelerometer's x bias (y follows).
+pub const ACCEL_BIAS: usize = 10;
 pub type State = SVector<f64, STATES>;
 pub type Covariance = SMatrix<f64, STATES, STATES>;
 
@@ -34,10 +38,14 @@ pub struct EkfConfig {
     /// Prior standard deviations of the bias and the scale.
     pub initial_bias_rps: f64,
     pub initial_scale: f64,
+    pub initial_accel_bias_mps2: f64,
     /// Standard deviation of roll/pitch read from the accelerometer, used
     /// only while the specific force is within `gravity_gate` of g.
     pub gravity_sigma_rad: f64,
     pub gravity_gate_mps2: f64,
+    /// Gravity readings farther than this squared Mahalanobis distance from
+    /// the state are skipped (chi-square, 2 degrees of freedom: 13.8 = 0.1%).
+    pub gravity_gate_chi2: f64,
 }
 
 impl Default for EkfConfig {
@@ -49,8 +57,10 @@ impl Default for EkfConfig {
             scale_walk: 1e-4,
             initial_bias_rps: 0.005,
             initial_scale: 0.05,
-            gravity_sigma_rad: 0.01,
+            initial_accel_bias_mps2: 0.05,
+            gravity_sigma_rad: 0.003,
             gravity_gate_mps2: 0.3,
+            gravity_gate_chi2: 13.8,
         }
     }
 }
@@ -78,7 +88,7 @@ impl Ekf {
     pub fn new(config: EkfConfig, start: &Pose3, time: f64) -> Self {
         let (roll, pitch, yaw) = start.rotation.euler_angles();
         let t = start.translation.vector;
-        let x = State::from_column_slice(&[t.x, t.y, t.z, roll, pitch, yaw, 0.0, 0.0, 0.0, 1.0]);
+        let x = State::from_column_slice(&[t.x, t.y, t.z, roll, pitch, yaw, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0]);
         let mut p = Covariance::zeros();
         for k in 0..6 {
             p[(k, k)] = 1e-8;
@@ -87,6 +97,9 @@ impl Ekf {
             p[(k, k)] = config.initial_bias_rps.powi(2);
         }
         p[(SCALE, SCALE)] = config.initial_scale.powi(2);
+        for k in ACCEL_BIAS..ACCEL_BIAS + 2 {
+            p[(k, k)] = config.initial_accel_bias_mps2.powi(2);
+        }
         Self { config, x, p, time }
     }
 
@@ -138,14 +151,37 @@ impl Ekf {
         if (accel.norm() - GRAVITY).abs() > c.gravity_gate_mps2 {
             return;
         }
-        let roll = accel.y.atan2(accel.z);
-        let pitch = (-accel.x).atan2((accel.y * accel.y + accel.z * accel.z).sqrt());
+        // The tilt the bias-corrected specific force says, against the state's.
+        let reading = |x: &State| {
+            let a = Vec3::new(accel.x - x[ACCEL_BIAS], accel.y - x[ACCEL_BIAS + 1], accel.z);
+            nalgebra::Vector2::new(a.y.atan2(a.z), (-a.x).atan2((a.y * a.y + a.z * a.z).sqrt()))
+        };
+        let residual_of = |x: &State| {
+            let r = reading(x);
+            nalgebra::Vector2::new(wrap(r[0] - x[3]), wrap(r[1] - x[4]))
+        };
         let mut h = SMatrix::<f64, 2, STATES>::zeros();
-        h[(0, 3)] = 1.0;
-        h[(1, 4)] = 1.0;
-        let residual = nalgebra::Vector2::new(wrap(roll - self.x[3]), wrap(pitch - self.x[4]));
+        for k in [3, 4, ACCEL_BIAS, ACCEL_BIAS + 1] {
+            let e = 1e-6;
+            let (mut plus, mut minus) = (self.x, self.x);
+            plus[k] += e;
+            minus[k] -= e;
+            // h(x) = state tilt - reading tilt shifted; dh/dx = -d(residual)/dx.
+            h.set_column(k, &((residual_of(&minus) - residual_of(&plus)) / (2.0 * e)));
+        }
+        let residual = residual_of(&self.x);
         let r = nalgebra::Matrix2::identity() * c.gravity_sigma_rad.powi(2);
-        self.update(&h, &residual, &r);
+        // While the pitch changes (the foot and top of a ramp) the reading
+        // lags the state; such outliers would drag the coupled states along.
+        let s = h * self.p * h.transpose() + r;
+        if let Some(s_inv) = s.try_inverse()
+            && (residual.transpose() * s_inv * residual)[0] <= c.gravity_gate_chi2
+        {
+            // Gravity says nothing about where the robot is or where it heads:
+            // only attitude and biases take the correction (a Schmidt update;
+            // the Joseph form keeps P right for any gain).
+            self.update_only(&h, &residual, &r, &[3, 4, 6, 7, 8, ACCEL_BIAS, ACCEL_BIAS + 1]);
+        }
     }
 
     /// A standard Kalman update with residual `z - h(x)` already formed.
@@ -155,9 +191,24 @@ impl Ekf {
         residual: &SVector<f64, M>,
         r: &SMatrix<f64, M, M>,
     ) {
+        let all: Vec<usize> = (0..STATES).collect();
+        self.update_only(h, residual, r, &all);
+    }
+
+    /// A Kalman update that corrects only the listed states.
+    pub fn update_only<const M: usize>(
+        &mut self,
+        h: &SMatrix<f64, M, STATES>,
+        residual: &SVector<f64, M>,
+        r: &SMatrix<f64, M, M>,
+        states: &[usize],
+    ) {
         let s = h * self.p * h.transpose() + r;
         let Some(s_inv) = s.try_inverse() else { return };
-        let gain = self.p * h.transpose() * s_inv;
+        let mut gain = self.p * h.transpose() * s_inv;
+        for k in (0..STATES).filter(|k| !states.contains(k)) {
+            gain.row_mut(k).fill(0.0);
+        }
         self.x += gain * residual;
         normalise(&mut self.x);
         // Joseph form keeps P symmetric and positive.

@@ -10,11 +10,16 @@ use serde::{Deserialize, Serialize};
 pub struct LandmarkConfig {
     pub gate_m: f64,
     pub min_observations: u32,
+    /// Trusted only while the observations agree to this RMS spread.
+    pub max_spread_m: f64,
+    /// Observations after this many no longer move the landmark, so that the
+    /// map does not follow the pose it corrects.
+    pub max_observations: u32,
 }
 
 impl Default for LandmarkConfig {
     fn default() -> Self {
-        Self { gate_m: 0.4, min_observations: 2 }
+        Self { gate_m: 0.4, min_observations: 2, max_spread_m: 0.05, max_observations: 20 }
     }
 }
 
@@ -24,6 +29,17 @@ pub struct Landmark {
     pub position: Vec3,
     pub observations: u32,
     sum: Vec3,
+    square_sum: f64,
+    /// Observations averaged into the position (at most `max_observations`).
+    used: u32,
+}
+
+impl Landmark {
+    /// RMS distance of the observations from their mean.
+    pub fn spread_m(&self) -> f64 {
+        let n = self.used as f64;
+        (self.square_sum / n - self.position.norm_squared()).max(0.0).sqrt()
+    }
 }
 
 #[derive(Debug, Clone, Default)]
@@ -63,7 +79,8 @@ impl LandmarkMap {
     }
 
     pub fn is_trusted(&self, k: usize) -> bool {
-        self.landmarks[k].observations >= self.config.min_observations
+        let l = &self.landmarks[k];
+        l.observations >= self.config.min_observations && l.spread_m() <= self.config.max_spread_m
     }
 
     /// Adds observations: to their landmark, or as new landmarks.
@@ -72,11 +89,21 @@ impl LandmarkMap {
             match a {
                 Some(k) => {
                     let l = &mut self.landmarks[*k];
-                    l.sum += p;
                     l.observations += 1;
-                    l.position = l.sum / l.observations as f64;
+                    if l.used < self.config.max_observations {
+                        l.used += 1;
+                        l.sum += p;
+                        l.square_sum += p.norm_squared();
+                        l.position = l.sum / l.used as f64;
+                    }
                 }
-                None => self.landmarks.push(Landmark { position: *p, observations: 1, sum: *p }),
+                None => self.landmarks.push(Landmark {
+                    position: *p,
+                    observations: 1,
+                    sum: *p,
+                    square_sum: p.norm_squared(),
+                    used: 1,
+                }),
             }
         }
     }

@@ -15,7 +15,8 @@ use crate::error::Result;
 use crate::fusion::CornerFusion;
 use crate::geometry::GeometryStages;
 use crate::landmarks::LandmarkMap;
-use crate::pose::{Correspondence, PoseSolver};
+use crate::plane_landmarks::{PlaneMap, RobotPlane};
+use crate::pose::{Correspondence, PlaneCorrespondence, PlaneSigmas, PoseSolver};
 
 /// How a frame's pose was obtained, written to the per-frame log.
 #[derive(Debug, Clone, PartialEq)]
@@ -26,7 +27,8 @@ pub enum FrameStatus {
     FirstFrame,
     /// Kept the odometry/IMU pose: too few correspondences.
     TooFewMatches(usize),
-    /// Kept the odometry/IMU pose: no 2D corners (no image, or it failed).
+    /// No 2D corners (no image, or it failed): planes alone, or the
+    /// odometry/IMU pose when there are too few.
     NoImage(String),
     /// Kept the odometry/IMU pose: the cloud was unusable.
     BadCloud(String),
@@ -55,6 +57,7 @@ pub struct FrameReport {
     pub corners: usize,
     pub matches: usize,
     pub correspondences: usize,
+    pub plane_correspondences: usize,
     pub landmarks: usize,
     pub detect_ms: f64,
     pub normals_ms: f64,
@@ -70,6 +73,7 @@ pub struct Localizer {
     fusion: CornerFusion,
     solver: PoseSolver,
     pub map: LandmarkMap,
+    pub plane_map: PlaneMap,
     calibration: Calibration,
     frames_seen: usize,
 }
@@ -81,6 +85,7 @@ impl Localizer {
             fusion: CornerFusion::new(config.fusion.clone())?,
             solver: PoseSolver::new(config.pose.clone()),
             map: LandmarkMap::new(config.landmarks.clone()),
+            plane_map: PlaneMap::new(config.plane_landmarks.clone()),
             calibration,
             frames_seen: 0,
         })
@@ -113,6 +118,7 @@ impl Localizer {
             corners: 0,
             matches: 0,
             correspondences: 0,
+            plane_correspondences: 0,
             landmarks: self.map.landmarks.len(),
             detect_ms,
             normals_ms: 0.0,
@@ -143,9 +149,22 @@ impl Localizer {
         report.corners_ms = geometry.corners_ms;
         report.planes = geometry.planes.planes.len();
         report.corners = geometry.corners.corners.len();
+        let predicted = ekf.pose();
+        let robot_from_lidar = self.calibration.robot_from_lidar;
+        let robot_planes: Vec<RobotPlane> =
+            geometry.planes.planes.iter().map(|p| RobotPlane::from_lidar(p, &robot_from_lidar)).collect();
+        let plane_matches = self.plane_correspondences(&robot_planes, &predicted);
+        report.plane_correspondences = plane_matches.len();
         let pixels = match pixels {
             Ok(p) => p,
-            Err(why) => return finish(report, ekf, FrameStatus::NoImage(why)),
+            Err(why) => {
+                // Planes can still correct the pose; corners cannot be found.
+                if !first {
+                    self.solver.correct_with_planes(ekf, &[], &plane_matches, self.plane_sigmas());
+                }
+                self.observe_planes(&robot_planes, &ekf.pose());
+                return finish(report, ekf, FrameStatus::NoImage(why));
+            }
         };
         let fusion_start = Instant::now();
         let lidar_from_camera = self.calibration.camera_from_lidar.inverse();
@@ -163,7 +182,6 @@ impl Localizer {
             .map(|m| self.calibration.robot_from_lidar * nalgebra::Point3::from(m.position))
             .map(|p| p.coords)
             .collect();
-        let predicted = ekf.pose();
         let in_world: Vec<Vec3> = in_robot.iter().map(|c| (predicted * nalgebra::Point3::from(*c)).coords).collect();
         let association = self.map.associate(&in_world);
         let correspondences: Vec<Correspondence> = in_robot
@@ -180,7 +198,7 @@ impl Localizer {
         let status = if first {
             FrameStatus::FirstFrame
         } else {
-            match self.solver.correct(ekf, &correspondences) {
+            match self.solver.correct_with_planes(ekf, &correspondences, &plane_matches, self.plane_sigmas()) {
                 Some(_) => FrameStatus::Fused(correspondences.len()),
                 None => FrameStatus::TooFewMatches(correspondences.len()),
             }
@@ -190,8 +208,48 @@ impl Localizer {
         let in_world: Vec<Vec3> = in_robot.iter().map(|c| (corrected * nalgebra::Point3::from(*c)).coords).collect();
         let association = self.map.associate(&in_world);
         self.map.observe(&in_world, &association);
+        self.observe_planes(&robot_planes, &corrected);
         report.pose_ms = pose_start.elapsed().as_secs_f64() * 1e3;
         report.landmarks = self.map.landmarks.len();
         finish(report, ekf, status)
+    }
+
+    fn plane_sigmas(&self) -> PlaneSigmas {
+        let c = &self.plane_map.config;
+        PlaneSigmas { distance_m: c.distance_sigma_m, normal_rad: c.normal_sigma_rad }
+    }
+
+    /// Frame planes paired with trusted plane landmarks (none when plane
+    /// landmarks are off).
+    fn plane_correspondences(&self, planes: &[RobotPlane], predicted: &Pose3) -> Vec<PlaneCorrespondence> {
+        if !self.plane_map.config.enabled {
+            return Vec::new();
+        }
+        let association = self.plane_map.associate(planes, predicted);
+        planes
+            .iter()
+            .zip(&association)
+            .filter_map(|(plane, a)| {
+                let k = (*a)?;
+                if !self.plane_map.is_trusted(k) {
+                    return None;
+                }
+                let landmark = &self.plane_map.landmarks[k];
+                let same_side = (predicted.rotation * plane.normal).dot(&landmark.normal) >= 0.0;
+                Some(PlaneCorrespondence {
+                    normal_in_robot: if same_side { plane.normal } else { -plane.normal },
+                    point_in_robot: plane.point,
+                    normal_in_world: landmark.normal,
+                    distance_in_world: landmark.distance,
+                })
+            })
+            .collect()
+    }
+
+    fn observe_planes(&mut self, planes: &[RobotPlane], pose: &Pose3) {
+        if self.plane_map.config.enabled {
+            let association = self.plane_map.associate(planes, pose);
+            self.plane_map.observe(planes, &association, pose);
+        }
     }
 }

@@ -29,7 +29,7 @@ pub struct PoseConfig {
 
 impl Default for PoseConfig {
     fn default() -> Self {
-        Self { corner_sigma_m: 0.03, huber: 2.0, iterations: 8, min_matches: 2, seed_gate_m: 0.3 }
+        Self { corner_sigma_m: 0.03, huber: 2.0, iterations: 20, min_matches: 2, seed_gate_m: 0.3 }
     }
 }
 
@@ -38,6 +38,23 @@ impl Default for PoseConfig {
 pub struct Correspondence {
     pub in_robot: Vec3,
     pub in_world: Vec3,
+}
+
+/// A frame plane (robot frame: normal and a point on it) and its landmark
+/// (world: normal . p = distance), normals on the same side.
+#[derive(Debug, Clone, Copy)]
+pub struct PlaneCorrespondence {
+    pub normal_in_robot: Vec3,
+    pub point_in_robot: Vec3,
+    pub normal_in_world: Vec3,
+    pub distance_in_world: f64,
+}
+
+/// Standard deviations of the plane residuals (offset, normal).
+#[derive(Debug, Clone, Copy)]
+pub struct PlaneSigmas {
+    pub distance_m: f64,
+    pub normal_rad: f64,
 }
 
 pub struct PoseSolver {
@@ -59,25 +76,40 @@ impl PoseSolver {
     /// Updates the filter with the correspondences; `None` (and the filter
     /// untouched) when there are too few.
     pub fn correct(&self, ekf: &mut Ekf, matches: &[Correspondence]) -> Option<PoseFix> {
+        self.correct_with_planes(ekf, matches, &[], PlaneSigmas { distance_m: 1.0, normal_rad: 1.0 })
+    }
+
+    /// As `correct`, with plane correspondences too; the frame needs
+    /// `min_matches` corners or at least three planes.
+    pub fn correct_with_planes(
+        &self,
+        ekf: &mut Ekf,
+        matches: &[Correspondence],
+        planes: &[PlaneCorrespondence],
+        plane_sigmas: PlaneSigmas,
+    ) -> Option<PoseFix> {
         let c = &self.config;
-        if matches.len() < c.min_matches.max(1) {
+        if matches.len() < c.min_matches.max(1) && planes.len() < 3 {
             return None;
         }
         let prior = ekf.x;
         let prior_cov = ekf.p;
         let mut x = self.seed(&prior, matches);
-        let sigma2 = c.corner_sigma_m.powi(2);
-        let m = 3 * matches.len();
-        let mut weights = vec![1.0; matches.len()];
+        let blocks = Blocks { corners: matches, planes, corner_sigma: c.corner_sigma_m, plane_sigmas };
+        let m = blocks.rows();
+        let mut weights = vec![1.0; blocks.count()];
         let mut gain_h = Covariance::zeros();
         for _ in 0..c.iterations {
-            let (residual, h) = linearise(&x, matches);
-            // Huber weights on each correspondence's normalised distance.
+            let (residual, h) = blocks.linearise(&x);
+            // Huber weights on each correspondence's normalised residual.
             for (k, w) in weights.iter_mut().enumerate() {
-                let d = residual.fixed_rows::<3>(3 * k).norm() / c.corner_sigma_m;
+                let d = blocks.normalised(&residual, k);
                 *w = if d <= c.huber { 1.0 } else { c.huber / d };
             }
-            let r = DMatrix::from_diagonal(&DVector::from_fn(m, |i, _| sigma2 / weights[i / 3]));
+            let r = DMatrix::from_diagonal(&DVector::from_fn(m, |i, _| {
+                let (block, sigma) = blocks.row_info(i);
+                sigma * sigma / weights[block]
+            }));
             let p = DMatrix::from_iterator(STATES, STATES, prior_cov.iter().copied());
             let s = &h * &p * h.transpose() + r;
             let s_inv = s.try_inverse()?;
@@ -107,11 +139,14 @@ impl PoseSolver {
         let i_kh = Covariance::identity() - gain_h;
         ekf.p = i_kh * prior_cov;
         ekf.p = 0.5 * (ekf.p + ekf.p.transpose());
-        let (residual, _) = linearise(&x, matches);
-        let inliers = (0..matches.len())
-            .filter(|&k| residual.fixed_rows::<3>(3 * k).norm() < c.huber * c.corner_sigma_m * 2.0)
-            .count();
-        let rms_m = (residual.norm_squared() / matches.len() as f64).sqrt();
+        let (residual, _) = blocks.linearise(&x);
+        let inliers = (0..matches.len()).filter(|&k| blocks.normalised(&residual, k) < 2.0 * c.huber).count();
+        let corner_rows = 3 * matches.len();
+        let rms_m = if matches.is_empty() {
+            0.0
+        } else {
+            (residual.rows(0, corner_rows).norm_squared() / matches.len() as f64).sqrt()
+        };
         Some(PoseFix { inliers, rms_m })
     }
 
@@ -145,27 +180,85 @@ impl PoseSolver {
     }
 }
 
-/// Residuals (landmark minus predicted position) and their Jacobian with
-/// respect to the state (central differences in the angles).
-fn linearise(x: &State, matches: &[Correspondence]) -> (DVector<f64>, DMatrix<f64>) {
-    let m = 3 * matches.len();
-    let predict = |x: &State, c: &Vec3| -> Vec3 { Vec3::new(x[0], x[1], x[2]) + rotation(x[3], x[4], x[5]) * c };
-    let mut residual = DVector::zeros(m);
-    let mut h = DMatrix::zeros(m, STATES);
-    for (k, corr) in matches.iter().enumerate() {
-        let r = corr.in_world - predict(x, &corr.in_robot);
-        residual.fixed_rows_mut::<3>(3 * k).copy_from(&r);
-        for a in 0..3 {
-            h[(3 * k + a, a)] = 1.0;
-        }
-        for angle in 3..6 {
-            let e = 1e-6;
-            let (mut plus, mut minus) = (*x, *x);
-            plus[angle] += e;
-            minus[angle] -= e;
-            let d = (predict(&plus, &corr.in_robot) - predict(&minus, &corr.in_robot)) / (2.0 * e);
-            h.fixed_view_mut::<3, 1>(3 * k, angle).copy_from(&d);
+/// The residual blocks of a frame: 3 rows per corner (landmark minus
+/// predicted position), 3 per plane (landmark offset minus the predicted
+/// offset of the frame plane's point, then the horizontal part of landmark
+/// normal minus predicted normal). The vertical part of a wall's normal would
+/// tie pitch and roll to the small tilt biases of plane fits; gravity measures
+/// them better, and over a long route a pitch bias of 1 mrad is 3 cm of height.
+struct Blocks<'a> {
+    corners: &'a [Correspondence],
+    planes: &'a [PlaneCorrespondence],
+    corner_sigma: f64,
+    plane_sigmas: PlaneSigmas,
+}
+
+impl Blocks<'_> {
+    fn count(&self) -> usize {
+        self.corners.len() + self.planes.len()
+    }
+    fn rows(&self) -> usize {
+        3 * self.corners.len() + 3 * self.planes.len()
+    }
+    /// (block index, standard deviation) of a residual row.
+    fn row_info(&self, row: usize) -> (usize, f64) {
+        let corner_rows = 3 * self.corners.len();
+        if row < corner_rows {
+            (row / 3, self.corner_sigma)
+        } else {
+            let k = (row - corner_rows) / 3;
+            let first = (row - corner_rows).is_multiple_of(3);
+            (self.corners.len() + k, if first { self.plane_sigmas.distance_m } else { self.plane_sigmas.normal_rad })
         }
     }
-    (residual, h)
+    /// Norm of a block's residual in standard deviations.
+    fn normalised(&self, residual: &DVector<f64>, block: usize) -> f64 {
+        let (start, len) = if block < self.corners.len() {
+            (3 * block, 3)
+        } else {
+            (3 * self.corners.len() + 3 * (block - self.corners.len()), 3)
+        };
+        (start..start + len)
+            .map(|row| {
+                let (_, sigma) = self.row_info(row);
+                (residual[row] / sigma).powi(2)
+            })
+            .sum::<f64>()
+            .sqrt()
+    }
+
+    fn predict(&self, x: &State) -> DVector<f64> {
+        let t = Vec3::new(x[0], x[1], x[2]);
+        let r = rotation(x[3], x[4], x[5]);
+        let mut out = DVector::zeros(self.rows());
+        for (k, c) in self.corners.iter().enumerate() {
+            out.fixed_rows_mut::<3>(3 * k).copy_from(&(c.in_world - (t + r * c.in_robot)));
+        }
+        let base = 3 * self.corners.len();
+        for (k, p) in self.planes.iter().enumerate() {
+            let point = t + r * p.point_in_robot;
+            out[base + 3 * k] = p.distance_in_world - p.normal_in_world.dot(&point);
+            let normal_gap = p.normal_in_world - r * p.normal_in_robot;
+            out[base + 3 * k + 1] = normal_gap.x;
+            out[base + 3 * k + 2] = normal_gap.y;
+        }
+        out
+    }
+
+    /// Residuals and their Jacobian with respect to the state (central
+    /// differences: the pose has six components and the rest do not enter).
+    fn linearise(&self, x: &State) -> (DVector<f64>, DMatrix<f64>) {
+        let residual = self.predict(x);
+        let mut h = DMatrix::zeros(self.rows(), STATES);
+        for k in 0..6 {
+            let e = 1e-6;
+            let (mut plus, mut minus) = (*x, *x);
+            plus[k] += e;
+            minus[k] -= e;
+            // h(x) = measurement - residual, so dh/dx = -d(residual)/dx.
+            let d = (self.predict(&minus) - self.predict(&plus)) / (2.0 * e);
+            h.set_column(k, &d);
+        }
+        (residual, h)
+    }
 }

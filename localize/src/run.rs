@@ -24,6 +24,9 @@ pub struct RunResult {
     /// Odometry/IMU alone: the same filter without corner corrections.
     pub reference: Trajectory,
     pub frames: Vec<FrameReport>,
+    /// The maps at the end of the run.
+    pub corner_landmarks: Vec<crate::landmarks::Landmark>,
+    pub plane_landmarks: Vec<crate::plane_landmarks::PlaneLandmark>,
 }
 
 pub fn run_sequence(
@@ -46,8 +49,13 @@ pub fn run_sequence(
             .expect("static template"),
     );
     bar.set_prefix("localize");
-    let mut result =
-        RunResult { trajectory: Trajectory::default(), reference: Trajectory::default(), frames: Vec::new() };
+    let mut result = RunResult {
+        trajectory: Trajectory::default(),
+        reference: Trajectory::default(),
+        frames: Vec::new(),
+        corner_landmarks: Vec::new(),
+        plane_landmarks: Vec::new(),
+    };
     for frame in &sequence.frames {
         replay.advance(&mut fused, frame.stamp);
         replay_reference.advance(&mut dead_reckoning, frame.stamp);
@@ -69,6 +77,8 @@ pub fn run_sequence(
         result.frames.push(report);
     }
     bar.finish();
+    result.corner_landmarks = localizer.map.landmarks.clone();
+    result.plane_landmarks = localizer.plane_map.landmarks.clone();
     Ok(result)
 }
 
@@ -114,7 +124,7 @@ pub fn metrics(sequence: &RecordedSequence, result: &RunResult) -> Result<Option
     }))
 }
 
-pub const FRAME_COLUMNS: &str = "timestamp,x,y,z,status,detections,planes,corners,matches,correspondences,landmarks,\
+pub const FRAME_COLUMNS: &str = "timestamp,x,y,z,status,detections,planes,corners,matches,correspondences,plane_correspondences,landmarks,\
 detect_ms,normals_ms,planes_ms,corners_ms,fusion_ms,pose_ms,total_ms";
 
 pub fn frames_csv(frames: &[FrameReport]) -> String {
@@ -124,7 +134,7 @@ pub fn frames_csv(frames: &[FrameReport]) -> String {
         let t = f.pose.translation.vector;
         let _ = writeln!(
             out,
-            "{:.6},{:.4},{:.4},{:.4},{},{},{},{},{},{},{},{:.1},{:.1},{:.1},{:.1},{:.1},{:.1},{:.1}",
+            "{:.6},{:.4},{:.4},{:.4},{},{},{},{},{},{},{},{},{:.1},{:.1},{:.1},{:.1},{:.1},{:.1},{:.1}",
             f.stamp,
             t.x,
             t.y,
@@ -135,6 +145,7 @@ pub fn frames_csv(frames: &[FrameReport]) -> String {
             f.corners,
             f.matches,
             f.correspondences,
+            f.plane_correspondences,
             f.landmarks,
             f.detect_ms,
             f.normals_ms,
@@ -148,12 +159,13 @@ pub fn frames_csv(frames: &[FrameReport]) -> String {
     out
 }
 
-/// Writes `trajectory.txt`, `reference.txt`, `frames.csv`, `config.json` and,
-/// with ground truth, `metrics.json` (every file atomically).
+/// Writes `trajectory.txt`, `reference.txt`, `frames.csv`, `config.json`,
+/// `trajectory.png` and, with ground truth, `metrics.json` (every file atomically).
 pub fn write_outputs(
     out: &Path,
     config: &LocalizeConfig,
     result: &RunResult,
+    truth: Option<&Trajectory>,
     metrics: Option<&RunMetrics>,
 ) -> Result<()> {
     std::fs::create_dir_all(out).map_err(|e| datasets::DataError::io(out, e))?;
@@ -161,6 +173,7 @@ pub fn write_outputs(
     write_tum(&out.join("reference.txt"), &result.reference)?;
     datasets::atomic::write_bytes(&out.join("frames.csv"), frames_csv(&result.frames).as_bytes())?;
     datasets::atomic::write_json(&out.join("config.json"), config)?;
+    crate::plot::write_trajectory_png(&out.join("trajectory.png"), &result.trajectory, &result.reference, truth)?;
     if let Some(m) = metrics {
         datasets::atomic::write_json(&out.join("metrics.json"), m)?;
     }

@@ -99,3 +99,70 @@ fn a_correction_recovers_a_known_rigid_transform() {
     );
     assert_eq!(ekf.x, before);
 }
+
+#[test]
+fn walls_alone_recover_position_and_heading() {
+    use localize::plane_landmarks::{PlaneLandmarkConfig, PlaneMap, RobotPlane};
+    use localize::pose::{PlaneCorrespondence, PlaneSigmas};
+    let truth = Pose3::from_parts(Translation3::new(1.0, 0.5, 0.0), UnitQuaternion::from_euler_angles(0.0, 0.0, 0.3));
+    // Four walls of a 6 x 4 m room: (outward normal, offset) in the world.
+    let walls = [
+        (Vec3::new(1.0, 0.0, 0.0), 3.0),
+        (Vec3::new(-1.0, 0.0, 0.0), 3.0),
+        (Vec3::new(0.0, 1.0, 0.0), 2.0),
+        (Vec3::new(0.0, -1.0, 0.0), 2.0),
+    ];
+    // What the robot sees: each wall's normal and a point of it, robot frame.
+    let seen: Vec<RobotPlane> = walls
+        .iter()
+        .map(|(n, d)| {
+            let point_world = n * *d + Vec3::new(0.0, 0.0, 1.0) + n.cross(&Vec3::z()) * 0.7;
+            RobotPlane {
+                normal: truth.rotation.inverse() * n,
+                point: (truth.inverse() * nalgebra::Point3::from(point_world)).coords,
+                inliers: 500,
+            }
+        })
+        .collect();
+    // Mapped from the true pose three times: trusted landmarks.
+    let mut map = PlaneMap::new(PlaneLandmarkConfig::default());
+    for _ in 0..3 {
+        let association = map.associate(&seen, &truth);
+        map.observe(&seen, &association, &truth);
+    }
+    assert_eq!(map.landmarks.len(), 4);
+    assert!((0..4).all(|k| map.is_trusted(k)));
+    let believed =
+        Pose3::from_parts(Translation3::new(1.12, 0.42, 0.0), UnitQuaternion::from_euler_angles(0.0, 0.0, 0.33));
+    let association = map.associate(&seen, &believed);
+    assert!(association.iter().all(Option::is_some), "{association:?}");
+    let matches: Vec<PlaneCorrespondence> = seen
+        .iter()
+        .zip(&association)
+        .map(|(p, a)| {
+            let l = &map.landmarks[a.unwrap()];
+            PlaneCorrespondence {
+                normal_in_robot: p.normal,
+                point_in_robot: p.point,
+                normal_in_world: l.normal,
+                distance_in_world: l.distance,
+            }
+        })
+        .collect();
+    // Position and heading uncertain; roll and pitch known (gravity levels
+    // them), as in the filter.
+    let mut ekf = Ekf::new(EkfConfig::default(), &believed, 0.0);
+    for k in 0..3 {
+        ekf.p[(k, k)] = 0.2f64.powi(2);
+    }
+    ekf.p[(5, 5)] = 0.1f64.powi(2);
+    let solver = PoseSolver::new(PoseConfig::default());
+    solver
+        .correct_with_planes(&mut ekf, &[], &matches, PlaneSigmas { distance_m: 0.001, normal_rad: 0.001 })
+        .expect("four walls");
+    let pose = ekf.pose();
+    let xy_error = (pose.translation.vector - truth.translation.vector).xy().norm();
+    assert!(xy_error < 2e-3, "{xy_error} m off");
+    let (_, _, yaw) = pose.rotation.euler_angles();
+    assert!((yaw - 0.3).abs() < 1e-3, "yaw {yaw}");
+}
