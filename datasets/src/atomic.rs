@@ -14,7 +14,12 @@ pub fn write_with(path: &Path, fill: impl FnOnce(&mut dyn Write) -> std::io::Res
         _ => Path::new("."),
     };
     std::fs::create_dir_all(dir).map_err(|e| DataError::io(dir, e))?;
-    let tmp = tempfile::Builder::new().prefix(".tmp-").tempfile_in(dir).map_err(|e| DataError::io(dir, e))?;
+    let mut builder = tempfile::Builder::new();
+    builder.prefix(".tmp-");
+    // Temporary files are private (0600); the result is an ordinary file.
+    #[cfg(unix)]
+    builder.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o644));
+    let tmp = builder.tempfile_in(dir).map_err(|e| DataError::io(dir, e))?;
     {
         let mut out = BufWriter::new(tmp.as_file());
         fill(&mut out).map_err(|e| DataError::io(path, e))?;
@@ -85,4 +90,18 @@ pub fn read_text(path: &Path) -> Result<String> {
 pub fn read_image(path: &Path) -> Result<image::DynamicImage> {
     let bytes = read_bytes(path)?;
     image::load_from_memory(&bytes).map_err(|e| DataError::image(path, e))
+}
+
+#[cfg(all(test, unix))]
+mod tests {
+    use std::os::unix::fs::PermissionsExt;
+
+    #[test]
+    fn written_files_are_readable_by_others_like_ordinary_files() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("out.txt");
+        super::write_bytes(&path, b"x").unwrap();
+        assert_eq!(std::fs::metadata(&path).unwrap().permissions().mode() & 0o777, 0o644);
+        assert_eq!(std::fs::read(&path).unwrap(), b"x");
+    }
 }
