@@ -25,11 +25,24 @@ pub struct PoseConfig {
     pub min_matches: usize,
     /// The closed-form seed is used only this close to the reference.
     pub seed_gate_m: f64,
+    /// Corrections move only the horizontal states (x, y, yaw, gyro z bias,
+    /// wheel scale); height, roll and pitch stay the IMU's.
+    pub horizontal_only: bool,
 }
+
+/// Height, roll, pitch, roll/pitch gyro biases and accelerometer biases.
+const VERTICAL_STATES: [usize; 7] = [2, 3, 4, 6, 7, 10, 11];
 
 impl Default for PoseConfig {
     fn default() -> Self {
-        Self { corner_sigma_m: 0.03, huber: 2.0, iterations: 20, min_matches: 2, seed_gate_m: 0.3 }
+        Self {
+            corner_sigma_m: 0.03,
+            huber: 2.0,
+            iterations: 20,
+            min_matches: 2,
+            seed_gate_m: 0.3,
+            horizontal_only: false,
+        }
     }
 }
 
@@ -113,7 +126,12 @@ impl PoseSolver {
             let p = DMatrix::from_iterator(STATES, STATES, prior_cov.iter().copied());
             let s = &h * &p * h.transpose() + r;
             let s_inv = s.try_inverse()?;
-            let gain = &p * h.transpose() * s_inv;
+            let mut gain = &p * h.transpose() * s_inv;
+            if c.horizontal_only {
+                for k in VERTICAL_STATES {
+                    gain.row_mut(k).fill(0.0);
+                }
+            }
             let mut dx = DVector::from_iterator(STATES, (prior - x).iter().copied());
             for k in 3..6 {
                 dx[k] = wrap(dx[k]);

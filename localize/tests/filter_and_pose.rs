@@ -166,3 +166,28 @@ fn walls_alone_recover_position_and_heading() {
     let (_, _, yaw) = pose.rotation.euler_angles();
     assert!((yaw - 0.3).abs() < 1e-3, "yaw {yaw}");
 }
+
+#[test]
+fn horizontal_only_corrections_leave_height_and_tilt_to_the_imu() {
+    let truth = Pose3::from_parts(Translation3::new(2.0, -1.0, 0.3), UnitQuaternion::from_euler_angles(0.0, 0.0, 0.7));
+    let believed =
+        Pose3::from_parts(Translation3::new(2.1, -1.1, 0.35), UnitQuaternion::from_euler_angles(0.01, -0.02, 0.75));
+    let mut ekf = Ekf::new(EkfConfig::default(), &believed, 0.0);
+    for k in 0..6 {
+        ekf.p[(k, k)] = 0.1f64.powi(2);
+    }
+    let before = ekf.x;
+    let matches: Vec<Correspondence> =
+        [Vec3::new(3.0, 1.0, -0.7), Vec3::new(3.0, -1.5, 0.7), Vec3::new(-2.0, 2.0, 1.0)]
+            .iter()
+            .map(|c| Correspondence { in_robot: *c, in_world: (truth * nalgebra::Point3::from(*c)).coords })
+            .collect();
+    let solver = PoseSolver::new(PoseConfig { horizontal_only: true, corner_sigma_m: 0.001, ..PoseConfig::default() });
+    solver.correct(&mut ekf, &matches).expect("three matches");
+    for k in [2, 3, 4] {
+        assert!((ekf.x[k] - before[k]).abs() < 1e-12, "state {k} moved: {} -> {}", before[k], ekf.x[k]);
+    }
+    // x, y and yaw moved toward the truth.
+    assert!((ekf.x[0] - 2.0).abs() < 0.05 && (ekf.x[1] + 1.0).abs() < 0.05, "{:?}", ekf.x);
+    assert!((ekf.x[5] - 0.7).abs() < 0.02);
+}
