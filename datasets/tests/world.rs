@@ -290,17 +290,7 @@ fn noiseless_odometry_follows_the_route_and_the_imu_feels_the_ramp() {
         let (xy, h) = route.at(speed * t.max(0.0));
         pose_on_floor(&world.layout, xy, h).unwrap()
     };
-    let silent = MotionConfig {
-        speed_scale_error: 0.0,
-        speed_noise_mps: 0.0,
-        yaw_rate_bias_rps: 0.0,
-        yaw_rate_noise_rps: 0.0,
-        accel_bias_mps2: 0.0,
-        gyro_bias_rps: 0.0,
-        accel_noise_mps2: 0.0,
-        gyro_noise_rps: 0.0,
-        ..MotionConfig::default()
-    };
+    let silent = MotionConfig::noiseless();
     // Level 1 is flat and straight: odometry equals the truth there.
     let odo = simulate_odometry(&pose_at, 60.0, &silent, 1);
     for s in odo.iter().filter(|s| s.timestamp <= 14.0) {

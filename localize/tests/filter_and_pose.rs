@@ -7,20 +7,6 @@ use localize::ekf::{Ekf, EkfConfig, SensorReplay};
 use localize::pose::{Correspondence, PoseConfig, PoseSolver};
 use nalgebra::{Translation3, UnitQuaternion};
 
-fn noiseless() -> MotionConfig {
-    MotionConfig {
-        speed_scale_error: 0.0,
-        speed_noise_mps: 0.0,
-        yaw_rate_bias_rps: 0.0,
-        yaw_rate_noise_rps: 0.0,
-        accel_bias_mps2: 0.0,
-        gyro_bias_rps: 0.0,
-        accel_noise_mps2: 0.0,
-        gyro_noise_rps: 0.0,
-        ..MotionConfig::default()
-    }
-}
-
 /// A 2 m radius turn at 0.1 m/s that, from t = 30 s, tilts nose-up over 2 s
 /// onto a 10 degree slope and keeps turning while it climbs.
 fn truth(t: f64) -> Pose3 {
@@ -42,7 +28,7 @@ fn truth(t: f64) -> Pose3 {
 
 #[test]
 fn the_filter_reproduces_the_true_path_from_noiseless_odometry_and_imu() {
-    let config = noiseless();
+    let config = MotionConfig::noiseless();
     let duration = 60.0;
     let odometry = simulate_odometry(&truth, duration, &config, 1);
     let imu = simulate_imu(&truth, duration, &config, 2);

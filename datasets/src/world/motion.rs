@@ -47,6 +47,21 @@ impl Default for MotionConfig {
 }
 
 impl MotionConfig {
+    /// Perfect sensors at the default rates: for tests with exact answers.
+    pub fn noiseless() -> Self {
+        Self {
+            speed_scale_error: 0.0,
+            speed_noise_mps: 0.0,
+            yaw_rate_bias_rps: 0.0,
+            yaw_rate_noise_rps: 0.0,
+            accel_bias_mps2: 0.0,
+            gyro_bias_rps: 0.0,
+            accel_noise_mps2: 0.0,
+            gyro_noise_rps: 0.0,
+            ..Self::default()
+        }
+    }
+
     pub fn validate(&self) -> Result<(), String> {
         let rates = [self.odometry_rate_hz, self.imu_rate_hz];
         if rates.iter().any(|r| !(r.is_finite() && *r > 0.0 && *r <= 2000.0)) {
