@@ -58,10 +58,6 @@ impl CornerFusion {
         Ok(Self { config })
     }
 
-    pub fn min_score(&self) -> f32 {
-        self.config.min_score
-    }
-
     /// Matches image corners (pixels, continuous image coordinates of the
     /// camera) to the 3D corners of the cloud; one match per 3D corner, the
     /// closest.

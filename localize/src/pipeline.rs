@@ -21,15 +21,15 @@ use crate::pose::{Correspondence, PlaneCorrespondence, PlaneSigmas, PoseSolver};
 /// How a frame's pose was obtained, written to the per-frame log.
 #[derive(Debug, Clone, PartialEq)]
 pub enum FrameStatus {
-    /// Corrected by this many landmark correspondences.
-    Fused(usize),
+    /// Corrected by this many corner and wall correspondences.
+    Fused { corners: usize, walls: usize },
     /// The first frame: the map starts at the reference pose.
     FirstFrame,
-    /// Kept the odometry/IMU pose: too few correspondences.
-    TooFewMatches(usize),
-    /// No 2D corners (no image, or it failed): planes alone, or the
-    /// odometry/IMU pose when there are too few.
-    NoImage(String),
+    /// Kept the odometry/IMU pose: too few corner and wall correspondences.
+    TooFewMatches { corners: usize, walls: usize },
+    /// No 2D corners (no image, or it failed): corrected by this many walls
+    /// alone, or (0) the odometry/IMU pose kept.
+    NoImage { why: String, walls: usize },
     /// Kept the odometry/IMU pose: the cloud was unusable.
     BadCloud(String),
 }
@@ -37,10 +37,13 @@ pub enum FrameStatus {
 impl FrameStatus {
     pub fn label(&self) -> String {
         match self {
-            Self::Fused(n) => format!("fused {n}"),
+            Self::Fused { corners, walls } => format!("fused: {corners} corners {walls} walls"),
             Self::FirstFrame => "first frame: map starts at the reference".into(),
-            Self::TooFewMatches(n) => format!("fallback: {n} correspondences"),
-            Self::NoImage(why) => format!("fallback: no 2D corners ({why})"),
+            Self::TooFewMatches { corners, walls } => {
+                format!("fallback to odometry/IMU: only {corners} corners {walls} walls")
+            }
+            Self::NoImage { why, walls: 0 } => format!("fallback to odometry/IMU: no 2D corners ({why})"),
+            Self::NoImage { why, walls } => format!("walls only: {walls} walls; no 2D corners ({why})"),
             Self::BadCloud(why) => format!("fallback: bad cloud ({why})"),
         }
     }
@@ -89,10 +92,6 @@ impl Localizer {
             calibration,
             frames_seen: 0,
         })
-    }
-
-    pub fn min_score(&self) -> f32 {
-        self.fusion.min_score()
     }
 
     /// Processes one frame whose filter has been advanced to its time;
@@ -158,12 +157,12 @@ impl Localizer {
         let pixels = match pixels {
             Ok(p) => p,
             Err(why) => {
-                // Planes can still correct the pose; corners cannot be found.
-                if !first {
-                    self.solver.correct_with_planes(ekf, &[], &plane_matches, self.plane_sigmas());
-                }
+                // Walls can still correct the pose; corners cannot be found.
+                let corrected =
+                    !first && self.solver.correct_with_planes(ekf, &[], &plane_matches, self.plane_sigmas()).is_some();
                 self.observe_planes(&robot_planes, &ekf.pose());
-                return finish(report, ekf, FrameStatus::NoImage(why));
+                let walls = if corrected { plane_matches.len() } else { 0 };
+                return finish(report, ekf, FrameStatus::NoImage { why, walls });
             }
         };
         let fusion_start = Instant::now();
@@ -198,9 +197,10 @@ impl Localizer {
         let status = if first {
             FrameStatus::FirstFrame
         } else {
+            let (corners, walls) = (correspondences.len(), plane_matches.len());
             match self.solver.correct_with_planes(ekf, &correspondences, &plane_matches, self.plane_sigmas()) {
-                Some(_) => FrameStatus::Fused(correspondences.len()),
-                None => FrameStatus::TooFewMatches(correspondences.len()),
+                Some(_) => FrameStatus::Fused { corners, walls },
+                None => FrameStatus::TooFewMatches { corners, walls },
             }
         };
         // The map grows with the corners placed by the corrected pose.

@@ -118,7 +118,7 @@ pub fn metrics(sequence: &RecordedSequence, result: &RunResult) -> Result<Option
         fused_frames: result
             .frames
             .iter()
-            .filter(|f| matches!(f.status, crate::pipeline::FrameStatus::Fused(_)))
+            .filter(|f| matches!(f.status, crate::pipeline::FrameStatus::Fused { .. }))
             .count(),
         mean_total_ms: result.frames.iter().map(|f| f.total_ms).sum::<f64>() / n,
     }))

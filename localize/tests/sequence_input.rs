@@ -75,7 +75,7 @@ fn a_corrupt_cloud_is_a_per_frame_fallback_and_the_run_goes_on() {
     assert_eq!(result.trajectory.len(), 3);
     assert_eq!(result.frames[0].status, FrameStatus::FirstFrame);
     assert!(matches!(&result.frames[1].status, FrameStatus::BadCloud(why) if why.contains("1.000000.pcd")));
-    assert_eq!(result.frames[2].status, FrameStatus::TooFewMatches(0));
+    assert_eq!(result.frames[2].status, FrameStatus::TooFewMatches { corners: 0, walls: 0 });
     assert_eq!(result.frames[2].planes, 5, "floor and four walls");
     // A still robot stays where it started.
     for pose in &result.trajectory.poses {
