@@ -107,3 +107,21 @@ fn a_calibration_that_does_not_parse_is_an_error_naming_it() {
     let error = RecordedSequence::open(dir.path()).err().expect("missing calibration");
     assert!(error.to_string().contains("calib.json"), "{error}");
 }
+
+#[test]
+fn frames_without_images_fall_back_and_say_why() {
+    let checkpoint = Path::new(env!("CARGO_MANIFEST_DIR")).join("../checkpoints/faster-rcnn");
+    let dir = tempfile::tempdir().unwrap();
+    write_sequence(dir.path());
+    let sequence = RecordedSequence::open(dir.path()).unwrap();
+    let mut source = CornerSource::detector(&checkpoint, infer::backend::CpuBackend::Flex.device(), 0.3).unwrap();
+    let result = run_sequence(&sequence, &mut source, &LocalizeConfig::default(), false).unwrap();
+    assert_eq!(result.trajectory.len(), 3);
+    for (frame, stamp) in result.frames.iter().zip(["0.000000", "1.000000", "2.000000"]) {
+        let FrameStatus::NoImage { why, walls } = &frame.status else { panic!("{:?}", frame.status) };
+        assert!(why.contains(&format!("no image for timestamp {stamp}")), "{why}");
+        // The walls are not trusted yet after so few frames: nothing corrected.
+        assert_eq!(*walls, 0);
+        assert!(frame.status.label().starts_with("fallback to odometry/IMU"));
+    }
+}
