@@ -9,7 +9,7 @@ use datasets::math::Vec3;
 use datasets::{DataError, Result};
 
 use crate::eval::{Comparison, ErrorSummary};
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 #[derive(Debug, Clone, Deserialize)]
 struct RegionEntry {
@@ -24,6 +24,14 @@ struct RegionEntry {
 #[derive(Debug, Clone, Deserialize)]
 struct WorldFile {
     regions: Vec<RegionEntry>,
+}
+
+/// The errors on one level (or the ramps) of the route.
+#[derive(Debug, Clone, Serialize)]
+pub struct SegmentMetrics {
+    pub name: String,
+    #[serde(flatten)]
+    pub errors: ErrorSummary,
 }
 
 /// Named footprint rectangles; a position belongs to the first that holds it.
@@ -55,7 +63,7 @@ impl LevelMap {
 
     /// Error summaries per segment (levels, then ramps) of a comparison,
     /// by where the reference pose of each matched pair lies.
-    pub fn per_segment(&self, comparison: &Comparison, reference: &Trajectory) -> Vec<(String, ErrorSummary)> {
+    pub fn per_segment(&self, comparison: &Comparison, reference: &Trajectory) -> Vec<SegmentMetrics> {
         let mut groups: Vec<(String, Vec<Vec3>)> = Vec::new();
         for (&(r, _), error) in comparison.association.pairs.iter().zip(&comparison.errors) {
             let p = reference.poses[r].translation.vector;
@@ -66,6 +74,9 @@ impl LevelMap {
             }
         }
         groups.sort_by(|a, b| a.0.cmp(&b.0));
-        groups.into_iter().filter_map(|(n, g)| ErrorSummary::of(&g).map(|s| (n, s))).collect()
+        groups
+            .into_iter()
+            .filter_map(|(name, g)| ErrorSummary::of(&g).map(|errors| SegmentMetrics { name, errors }))
+            .collect()
     }
 }

@@ -14,7 +14,7 @@ use crate::corner_source::CornerSource;
 use crate::ekf::{Ekf, SensorReplay};
 use crate::error::Result;
 use crate::eval::{Alignment, ErrorSummary, compare};
-use crate::levels::LevelMap;
+use crate::levels::{LevelMap, SegmentMetrics};
 use crate::pipeline::{FrameReport, Localizer};
 use crate::sequence::RecordedSequence;
 
@@ -86,7 +86,7 @@ pub fn run_sequence(
 #[derive(Debug, Clone, Serialize)]
 pub struct TrajectoryMetrics {
     pub overall: ErrorSummary,
-    pub levels: Vec<(String, ErrorSummary)>,
+    pub levels: Vec<SegmentMetrics>,
 }
 
 #[derive(Debug, Clone, Serialize)]

@@ -31,7 +31,7 @@ fn fused_localization_beats_odometry_and_imu_on_a_generated_route() {
     let (fused, odometry) = (m.fused.overall, m.odometry_imu.overall);
     assert!(fused.ate_rmse < 0.05, "fused ATE {} m", fused.ate_rmse);
     assert!(fused.ate_rmse < odometry.ate_rmse / 2.0, "fused {} vs odometry/IMU {}", fused.ate_rmse, odometry.ate_rmse);
-    assert!(m.fused.levels.iter().any(|(name, _)| name == "ramps"), "{:?}", m.fused.levels);
+    assert!(m.fused.levels.iter().any(|l| l.name == "ramps"), "{:?}", m.fused.levels);
     let out = dir.path().join("run");
     write_outputs(&out, &config, &result, sequence.ground_truth.as_ref(), Some(&m)).unwrap();
     for file in ["trajectory.txt", "reference.txt", "frames.csv", "metrics.json", "trajectory.png", "config.json"] {

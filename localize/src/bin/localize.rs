@@ -140,14 +140,7 @@ fn eval(args: &EvalArgs) -> Result<()> {
         let mut object = serde_json::to_value(s)?;
         object["align"] = serde_json::to_value(args.align)?;
         object["scale"] = comparison.alignment.scale.into();
-        object["levels"] = levels
-            .iter()
-            .map(|(name, summary)| {
-                let mut v = serde_json::to_value(summary).expect("plain numbers");
-                v["name"] = name.clone().into();
-                v
-            })
-            .collect();
+        object["levels"] = serde_json::to_value(&levels)?;
         println!("{object}");
     } else {
         println!("matched poses: {} (alignment {:?}, scale {:.6})", s.matched, args.align, comparison.alignment.scale);
@@ -161,8 +154,8 @@ fn eval(args: &EvalArgs) -> Result<()> {
                 s.matched, s.rmse_x, s.rmse_y, s.rmse_z, s.ate_rmse
             )
         };
-        for (name, summary) in &levels {
-            row(name, summary);
+        for level in &levels {
+            row(&level.name, &level.errors);
         }
         row("all", &s);
         println!("ate: mean {:.6} median {:.6} max {:.6}", s.ate_mean, s.ate_median, s.ate_max);
@@ -258,7 +251,7 @@ fn run(args: &RunArgs) -> Result<()> {
         println!("{} frames, {} fused, {:.1} ms per frame", m.frames, m.fused_frames, m.mean_total_ms);
         println!("{:<22} {:>8} {:>8} {:>8} {:>8}", "", "rmse_x", "rmse_y", "rmse_z", "ate");
         for (name, t) in [("fused", &m.fused), ("odometry/IMU", &m.odometry_imu)] {
-            for (level, s) in t.levels.iter().map(|(n, s)| (n.as_str(), s)).chain([("all", &t.overall)]) {
+            for (level, s) in t.levels.iter().map(|l| (l.name.as_str(), &l.errors)).chain([("all", &t.overall)]) {
                 println!(
                     "{:<22} {:>8.4} {:>8.4} {:>8.4} {:>8.4}",
                     format!("{name} {level}"),
