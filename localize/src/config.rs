@@ -12,10 +12,12 @@ use crate::normals::NormalConfig;
 use crate::plane_landmarks::PlaneLandmarkConfig;
 use crate::planes::PlaneConfig;
 use crate::pose::PoseConfig;
+use crate::voxel::VoxelConfig;
 
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct LocalizeConfig {
+    pub voxel: VoxelConfig,
     pub normals: NormalConfig,
     pub planes: PlaneConfig,
     pub corners: CornerConfig,

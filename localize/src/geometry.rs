@@ -10,15 +10,19 @@ use crate::corners::{CornerExtractor, CornerSet};
 use crate::error::{LocalizeError, Result};
 use crate::normals::{NormalEstimator, build_tree};
 use crate::planes::{PlaneExtractor, PlaneSet};
+use crate::voxel::VoxelFilter;
 
 pub struct GeometryStages {
+    voxel: VoxelFilter,
     normals: NormalEstimator,
     planes: PlaneExtractor,
     corners: CornerExtractor,
 }
 
-/// What the geometry stages found, with the milliseconds each took.
+/// What the geometry stages found, with the milliseconds each took. Plane
+/// inlier indices refer to `points`, the (possibly down-sampled) cloud.
 pub struct Geometry {
+    pub points: Vec<Point3<f32>>,
     pub planes: PlaneSet,
     pub corners: CornerSet,
     pub normals_ms: f64,
@@ -33,6 +37,7 @@ fn ms_since(start: Instant) -> f64 {
 impl GeometryStages {
     pub fn new(config: &LocalizeConfig) -> Result<Self> {
         Ok(Self {
+            voxel: VoxelFilter::new(config.voxel.clone())?,
             normals: NormalEstimator::new(config.normals.clone())?,
             planes: PlaneExtractor::new(config.planes.clone())?,
             corners: CornerExtractor::new(config.corners.clone())?,
@@ -44,16 +49,18 @@ impl GeometryStages {
         if points.is_empty() {
             return Err(LocalizeError::Cloud("no finite points".into()));
         }
+        // Down-sampling is counted with the normals it serves.
         let start = Instant::now();
-        let tree = build_tree(points);
-        let normals = self.normals.estimate(points, &tree, sensor)?;
+        let points = self.voxel.downsample(points);
+        let tree = build_tree(&points);
+        let normals = self.normals.estimate(&points, &tree, sensor)?;
         let normals_ms = ms_since(start);
         let start = Instant::now();
-        let planes = self.planes.extract(points, &normals);
+        let planes = self.planes.extract(&points, &normals);
         let planes_ms = ms_since(start);
         let start = Instant::now();
-        let corners = self.corners.extract(&planes, points, &tree, sensor);
+        let corners = self.corners.extract(&planes, &points, &tree, sensor);
         let corners_ms = ms_since(start);
-        Ok(Geometry { planes, corners, normals_ms, planes_ms, corners_ms })
+        Ok(Geometry { points, planes, corners, normals_ms, planes_ms, corners_ms })
     }
 }

@@ -20,3 +20,4 @@ pub mod plot;
 pub mod pose;
 pub mod run;
 pub mod sequence;
+pub mod voxel;

@@ -173,7 +173,7 @@ impl Localizer {
             &lidar_from_camera,
             &geometry.planes,
             &geometry.corners,
-            &cloud.points,
+            &geometry.points,
         );
         report.matches = matches.len();
         let in_robot: Vec<Vec3> = matches
