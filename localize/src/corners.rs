@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{LocalizeError, Result};
 use crate::normals::PointTree;
-use crate::planes::PlaneSet;
+use crate::planes::{Plane, PlaneSet};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -68,6 +68,19 @@ pub struct CornerSet {
     pub edges: Vec<Edge>,
 }
 
+/// The point where three planes meet and |det| of their normals (how well
+/// it is determined); `None` below `min_conditioning`.
+pub fn intersect_three(planes: [&Plane; 3], min_conditioning: f64) -> Option<(Vec3, f64)> {
+    let [a, b, c] = planes;
+    let normals = Mat3::from_rows(&[a.normal.transpose(), b.normal.transpose(), c.normal.transpose()]);
+    let conditioning = normals.determinant().abs();
+    if conditioning < min_conditioning {
+        return None;
+    }
+    let position = normals.try_inverse()? * Vec3::new(a.distance, b.distance, c.distance);
+    Some((position, conditioning))
+}
+
 pub struct CornerExtractor {
     config: CornerConfig,
 }
@@ -99,14 +112,11 @@ impl CornerExtractor {
         for i in 0..planes.len() {
             for j in i + 1..planes.len() {
                 for k in j + 1..planes.len() {
-                    let (a, b, d) = (&planes[i], &planes[j], &planes[k]);
-                    let normals = Mat3::from_rows(&[a.normal.transpose(), b.normal.transpose(), d.normal.transpose()]);
-                    let conditioning = normals.determinant().abs();
-                    if conditioning < c.min_conditioning {
+                    let Some((position, conditioning)) =
+                        intersect_three([&planes[i], &planes[j], &planes[k]], c.min_conditioning)
+                    else {
                         continue;
-                    }
-                    let Some(inverse) = normals.try_inverse() else { continue };
-                    let position = inverse * Vec3::new(a.distance, b.distance, d.distance);
+                    };
                     let count = support(&position);
                     if [i, j, k].iter().all(|&p| count[p] >= c.min_support) {
                         corners.push(Corner3 { position, planes: [i, j, k], conditioning });
@@ -145,7 +155,7 @@ impl CornerExtractor {
                 let point = inverse * Vec3::new(a.distance, b.distance, 0.0);
                 // Both planes must reach the line: an inlier of each within the
                 // support radius of it.
-                let near = |plane: &crate::planes::Plane| {
+                let near = |plane: &Plane| {
                     plane.inliers.iter().any(|&p| {
                         let v = points[p as usize].cast::<f64>().coords - point;
                         (v - direction * v.dot(&direction)).norm() < c.support_radius_m

@@ -10,7 +10,7 @@ use datasets::camera::PinholeCamera;
 use datasets::math::{Pose3, Vec3};
 use serde::{Deserialize, Serialize};
 
-use crate::corners::CornerSet;
+use crate::corners::{CornerSet, intersect_three};
 use crate::error::{LocalizeError, Result};
 use crate::planes::PlaneSet;
 
@@ -113,18 +113,9 @@ impl CornerFusion {
         for i in 0..near.len() {
             for j in i + 1..near.len() {
                 for k in j + 1..near.len() {
-                    let (a, b, c) = (near[i], near[j], near[k]);
-                    let m = datasets::math::Mat3::from_rows(&[
-                        a.normal.transpose(),
-                        b.normal.transpose(),
-                        c.normal.transpose(),
-                    ]);
-                    let conditioning = m.determinant().abs();
-                    if conditioning < MIN_CONDITIONING {
+                    let Some((x, conditioning)) = intersect_three([near[i], near[j], near[k]], MIN_CONDITIONING) else {
                         continue;
-                    }
-                    let Some(inv) = m.try_inverse() else { continue };
-                    let x = inv * Vec3::new(a.distance, b.distance, c.distance);
+                    };
                     if (x - hit).norm() < self.config.gate_m && best.is_none_or(|(q, _)| conditioning > q) {
                         best = Some((conditioning, x));
                     }
