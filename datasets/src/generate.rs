@@ -129,7 +129,7 @@ pub struct Summary {
 }
 
 /// Streams of the one seed, so that each part draws its own numbers.
-mod stream {
+pub(crate) mod stream {
     pub const APPEARANCE: u64 = 1;
     pub const DETECTION: u64 = 2;
     pub const SEQUENCE_LIGHT: u64 = 3;
@@ -138,11 +138,11 @@ mod stream {
     pub const IMU: u64 = 6;
 }
 
-fn key(seed: u64, stream: u64, index: u64) -> u64 {
+pub(crate) fn key(seed: u64, stream: u64, index: u64) -> u64 {
     mix(mix(seed ^ stream.wrapping_mul(0x9e37_79b9)) ^ index)
 }
 
-fn progress(len: usize, what: &str) -> ProgressBar {
+pub(crate) fn progress(len: usize, what: &str) -> ProgressBar {
     let bar = ProgressBar::new(len as u64);
     bar.set_style(
         ProgressStyle::with_template("{msg:>12} [{bar:40}] {pos}/{len} ({eta})")
@@ -252,16 +252,36 @@ fn random_robot_pose(world: &World, rng: &mut ChaCha8Rng) -> Pose3 {
 fn write_detection_set(dir: &Path, world: &World, rig: &Rig, config: &DatagenConfig) -> Result<(usize, usize)> {
     let n = config.detection.images;
     let bar = progress(n, "detection");
-    let results: Vec<Result<(CocoImage, Vec<CornerLabel>)>> = (0..n)
+    let views = render_views(dir, world, rig, config, config.seed, 0..n, "", &bar)?;
+    bar.finish_and_clear();
+    let train: Vec<bool> = (0..n).map(|i| i < config.detection.train).collect();
+    let labels = write_coco_splits(dir, views, &train)?;
+    Ok((n, labels))
+}
+
+/// Renders random views `indices` of `world` into `dir/images` and
+/// `dir/canny` (files `{prefix}{i:06}.png`, COCO ids `i + 1`), with their
+/// visible corners. `seed` picks the views and the lighting.
+pub(crate) fn render_views(
+    dir: &Path,
+    world: &World,
+    rig: &Rig,
+    config: &DatagenConfig,
+    seed: u64,
+    indices: std::ops::Range<usize>,
+    prefix: &str,
+    bar: &ProgressBar,
+) -> Result<Vec<(CocoImage, Vec<CornerLabel>)>> {
+    indices
         .into_par_iter()
         .map(|i| {
-            let k = key(config.seed, stream::DETECTION, i as u64);
+            let k = key(seed, stream::DETECTION, i as u64);
             let mut rng = ChaCha8Rng::seed_from_u64(k);
             let world_from_camera = random_view(world, rig, &mut rng);
             let lighting = Lighting::varied(k, world.layout.lights.len());
             let image = render(world, &rig.camera, &world_from_camera, &lighting);
             let labels = visible_corners(world, &rig.camera, &world_from_camera, &config.labels);
-            let name = format!("{i:06}.png");
+            let name = format!("{prefix}{i:06}.png");
             let image = DynamicImage::ImageRgb8(image);
             atomic::write_image(
                 &dir.join("canny").join(&name),
@@ -277,24 +297,31 @@ fn write_detection_set(dir: &Path, world: &World, rig: &Rig, config: &DatagenCon
             };
             Ok((entry, labels))
         })
-        .collect();
-    bar.finish_and_clear();
+        .collect()
+}
+
+/// Writes `dir/train.json` (views whose `train` flag is set) and
+/// `dir/test.json` (the others); returns the number of labels.
+pub(crate) fn write_coco_splits(
+    dir: &Path,
+    views: Vec<(CocoImage, Vec<CornerLabel>)>,
+    train: &[bool],
+) -> Result<usize> {
     let mut splits = [
         CocoDataset { categories: categories(), ..Default::default() },
         CocoDataset { categories: categories(), ..Default::default() },
     ];
     let mut next_id = 0;
     let mut label_count = 0;
-    for (i, result) in results.into_iter().enumerate() {
-        let (entry, labels) = result?;
-        let split = &mut splits[usize::from(i >= config.detection.train)];
+    for ((entry, labels), &is_train) in views.into_iter().zip(train) {
+        let split = &mut splits[usize::from(!is_train)];
         label_count += labels.len();
         split.annotations.extend(coco_annotations(&labels, entry.id, &mut next_id));
         split.images.push(entry);
     }
     formats::write_coco(&dir.join("train.json"), &splits[0])?;
     formats::write_coco(&dir.join("test.json"), &splits[1])?;
-    Ok((n, label_count))
+    Ok(label_count)
 }
 
 /// A recorded frame of the sequence.

@@ -8,6 +8,8 @@
 pub mod atomic;
 pub mod bbox;
 pub mod camera;
+pub mod canny;
+pub mod corpus;
 pub mod error;
 pub mod formats;
 pub mod generate;

@@ -29,6 +29,16 @@ impl Backbone {
     }
 }
 
+impl Backbone {
+    /// Convolutions in the trunk (torchvision's `features`).
+    pub fn trunk_convs(self) -> usize {
+        match self {
+            Self::FasterRcnn | Self::Vgg16 => crate::trunk::VGG16_CHANNELS.len(),
+            Self::Alexnet => crate::trunk::ALEXNET_CHANNELS.len(),
+        }
+    }
+}
+
 impl std::fmt::Display for Backbone {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(self.name())

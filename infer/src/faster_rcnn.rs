@@ -92,7 +92,18 @@ impl FasterRcnn {
 
     /// `[B, C, H/16, W/16]` features.
     pub fn trunk(&self, x: Tensor<4>) -> Tensor<4> {
-        trunk::vgg16_forward(&self.features, &self.pool, &self.act, x, false)
+        self.trunk_from(x, 0)
+    }
+
+    /// The trunk from convolution `start` on, for inputs that are the
+    /// output of the first `start` convolutions (cached frozen features).
+    pub fn trunk_from(&self, x: Tensor<4>, start: usize) -> Tensor<4> {
+        trunk::vgg16_forward_range(&self.features, &self.pool, &self.act, x, start..self.features.len(), false)
+    }
+
+    /// The first `end` convolutions only.
+    pub fn trunk_until(&self, x: Tensor<4>, end: usize) -> Tensor<4> {
+        trunk::vgg16_forward_range(&self.features, &self.pool, &self.act, x, 0..end, false)
     }
 
     pub fn rpn(&self, features: Tensor<4>) -> RpnOutput {

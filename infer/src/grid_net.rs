@@ -82,19 +82,40 @@ impl GridNet {
 
     /// The convolutional features: `[B, C, 7, 7]` (VGG16) or `[B, C, 6, 6]` (AlexNet).
     pub fn trunk(&self, x: Tensor<4>) -> Tensor<4> {
-        let x = match self.backbone {
-            Backbone::Alexnet => trunk::alexnet_forward(&self.features, &self.pool, &self.act, x),
-            _ => trunk::vgg16_forward(&self.features, &self.pool, &self.act, x, true),
-        };
-        self.avgpool.forward(x)
+        self.trunk_from(x, 0)
+    }
+
+    /// The trunk from convolution `start` on, for inputs that are the
+    /// output of the first `start` convolutions (cached frozen features).
+    pub fn trunk_from(&self, x: Tensor<4>, start: usize) -> Tensor<4> {
+        self.avgpool.forward(self.convs(x, start..self.features.len()))
+    }
+
+    /// The first `end` convolutions only.
+    pub fn trunk_until(&self, x: Tensor<4>, end: usize) -> Tensor<4> {
+        self.convs(x, 0..end)
+    }
+
+    fn convs(&self, x: Tensor<4>, layers: std::ops::Range<usize>) -> Tensor<4> {
+        match self.backbone {
+            Backbone::Alexnet => trunk::alexnet_forward_range(&self.features, &self.pool, &self.act, x, layers),
+            _ => trunk::vgg16_forward_range(&self.features, &self.pool, &self.act, x, layers, true),
+        }
     }
 
     /// The head on trunk features.
     pub fn head(&self, features: Tensor<4>) -> GridOutput {
         let [b, ..] = features.dims();
+        let out = self.classifier[2].forward(self.hidden(features));
+        GridOutput { cells: out.reshape([b, self.cells, self.cells, CELL_VALUES]) }
+    }
+
+    /// The output of the two hidden classifier layers (the input of the
+    /// layer that torchvision's 1000 classes and our grid head share).
+    pub fn hidden(&self, features: Tensor<4>) -> Tensor<2> {
         let x: Tensor<2> = features.flatten(1, 3);
         // torchvision: VGG applies dropout after each hidden layer, AlexNet before.
-        let x = match self.backbone {
+        match self.backbone {
             Backbone::Alexnet => {
                 let x = self.act.forward(self.classifier[0].forward(self.dropout.forward(x)));
                 self.act.forward(self.classifier[1].forward(self.dropout.forward(x)))
@@ -103,9 +124,7 @@ impl GridNet {
                 let x = self.dropout.forward(self.act.forward(self.classifier[0].forward(x)));
                 self.dropout.forward(self.act.forward(self.classifier[1].forward(x)))
             }
-        };
-        let out = self.classifier[2].forward(x);
-        GridOutput { cells: out.reshape([b, self.cells, self.cells, CELL_VALUES]) }
+        }
     }
 
     pub fn forward(&self, x: Tensor<4>) -> GridOutput {

@@ -14,6 +14,7 @@ pub mod grid_net;
 pub mod labeled;
 pub mod metrics;
 pub mod network;
+pub mod pretrained;
 pub mod roi_align;
 pub mod trunk;
 

@@ -1,6 +1,9 @@
 //! One type over the three networks, so that training, inference and
 //! checkpoints handle them alike.
 
+use burn::module::{ModuleVisitor, Param};
+use burn::nn::Linear;
+use burn::nn::conv::Conv2d;
 use burn::prelude::*;
 
 use crate::boxes::{BBox, batched_nms};
@@ -25,17 +28,75 @@ pub struct Detection {
 }
 
 impl Network {
+    /// Builds the network with freshly drawn weights. Burn draws a
+    /// parameter's initial value lazily, at its first use, from the device's
+    /// generator; every parameter is drawn here instead, so that the weights
+    /// depend only on the seed and not on what runs first (a feature cache,
+    /// a validation pass).
     pub fn new(config: &DetectorConfig, device: &Device) -> Self {
-        match config.backbone {
+        let network = match config.backbone {
             Backbone::FasterRcnn => Self::FasterRcnn(FasterRcnn::new(config, device)),
             Backbone::Vgg16 | Backbone::Alexnet => Self::Grid(GridNet::new(config, device)),
+        };
+        struct Draw;
+        impl ModuleVisitor for Draw {
+            fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+                let _ = param.val();
+            }
         }
+        match &network {
+            Self::FasterRcnn(m) => m.visit(&mut Draw),
+            Self::Grid(m) => m.visit(&mut Draw),
+        }
+        network
     }
 
     pub fn num_params(&self) -> usize {
         match self {
             Self::FasterRcnn(m) => m.num_params(),
             Self::Grid(m) => m.num_params(),
+        }
+    }
+
+    /// The trunk's convolutions and the two hidden fully connected layers
+    /// (Faster R-CNN's fc6/fc7, the grid networks' first two classifier
+    /// layers): what pretrained weights fill.
+    pub fn trunk_layers_mut(&mut self) -> (&mut Vec<Conv2d>, Vec<&mut Linear>) {
+        match self {
+            Self::FasterRcnn(m) => (&mut m.features, vec![&mut m.fc6, &mut m.fc7]),
+            Self::Grid(m) => (&mut m.features, m.classifier.iter_mut().take(2).collect()),
+        }
+    }
+
+    pub fn hidden_layers(&self) -> Vec<&Linear> {
+        match self {
+            Self::FasterRcnn(m) => vec![&m.fc6, &m.fc7],
+            Self::Grid(m) => m.classifier.iter().take(2).collect(),
+        }
+    }
+
+    pub fn trunk_convs(&self) -> &[Conv2d] {
+        match self {
+            Self::FasterRcnn(m) => &m.features,
+            Self::Grid(m) => &m.features,
+        }
+    }
+
+    /// Stops training of the first `n` convolutions: no gradient reaches
+    /// their parameters, so the optimizer leaves them bit-identical.
+    pub fn freeze_convs(mut self, n: usize) -> Self {
+        let (convs, _) = self.trunk_layers_mut();
+        for conv in convs.iter_mut().take(n) {
+            *conv = conv.clone().no_grad();
+        }
+        self
+    }
+
+    /// The output of the first `end` trunk convolutions (with their pooling).
+    pub fn trunk_until(&self, x: Tensor<4>, end: usize) -> Tensor<4> {
+        match self {
+            Self::FasterRcnn(m) => m.trunk_until(x, end),
+            Self::Grid(m) => m.trunk_until(x, end),
         }
     }
 

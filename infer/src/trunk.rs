@@ -2,6 +2,8 @@
 //! width), one input channel by default. Layers are kept in `features`
 //! vectors so that torchvision's `features.N` names map onto them.
 
+use std::ops::Range;
+
 use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::nn::pool::{MaxPool2d, MaxPool2dConfig};
 use burn::nn::{Initializer, PaddingConfig2d, Relu};
@@ -49,9 +51,23 @@ pub fn vgg16_convs(config: &DetectorConfig, device: &Device) -> Vec<Conv2d> {
 /// Runs VGG16's convolutions on `x` [B, C, H, W]; with `last_pool` the output
 /// has stride 32 (the classifier's input), without it stride 16 (Faster
 /// R-CNN's trunk).
-pub fn vgg16_forward(convs: &[Conv2d], pool: &MaxPool2d, act: &Relu, mut x: Tensor<4>, last_pool: bool) -> Tensor<4> {
-    for (i, conv) in convs.iter().enumerate() {
-        x = act.forward(conv.forward(x));
+pub fn vgg16_forward(convs: &[Conv2d], pool: &MaxPool2d, act: &Relu, x: Tensor<4>, last_pool: bool) -> Tensor<4> {
+    vgg16_forward_range(convs, pool, act, x, 0..convs.len(), last_pool)
+}
+
+/// Runs convolutions `layers` only (each with its ReLU and the pooling that
+/// follows it): a frozen prefix is run once and its output cached, the rest
+/// on every step.
+pub fn vgg16_forward_range(
+    convs: &[Conv2d],
+    pool: &MaxPool2d,
+    act: &Relu,
+    mut x: Tensor<4>,
+    layers: Range<usize>,
+    last_pool: bool,
+) -> Tensor<4> {
+    for i in layers {
+        x = act.forward(convs[i].forward(x));
         if VGG16_POOL_AFTER.contains(&i) && (last_pool || i != 12) {
             x = pool.forward(x);
         }
@@ -93,9 +109,19 @@ pub fn alexnet_pool() -> MaxPool2d {
     MaxPool2dConfig::new([3, 3]).with_strides([2, 2]).init()
 }
 
-pub fn alexnet_forward(convs: &[Conv2d], pool: &MaxPool2d, act: &Relu, mut x: Tensor<4>) -> Tensor<4> {
-    for (i, conv) in convs.iter().enumerate() {
-        x = act.forward(conv.forward(x));
+pub fn alexnet_forward(convs: &[Conv2d], pool: &MaxPool2d, act: &Relu, x: Tensor<4>) -> Tensor<4> {
+    alexnet_forward_range(convs, pool, act, x, 0..convs.len())
+}
+
+pub fn alexnet_forward_range(
+    convs: &[Conv2d],
+    pool: &MaxPool2d,
+    act: &Relu,
+    mut x: Tensor<4>,
+    layers: Range<usize>,
+) -> Tensor<4> {
+    for i in layers {
+        x = act.forward(convs[i].forward(x));
         if matches!(i, 0 | 1 | 4) {
             x = pool.forward(x);
         }

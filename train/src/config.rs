@@ -5,6 +5,7 @@ use std::path::PathBuf;
 
 use infer::backend::CpuBackend;
 use infer::config::{Backbone, DetectorConfig};
+use infer::pretrained::InputConvention;
 use serde::{Deserialize, Serialize};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
@@ -35,6 +36,27 @@ pub struct TrainConfig {
     /// Random left-right flips of the training images.
     pub augment: bool,
     pub backend: CpuBackend,
+    /// Starting weights for the trunk (torchvision-named `.pth`/`.safetensors`
+    /// or a `pretrain` trunk); `None` trains from scratch.
+    #[serde(default)]
+    pub pretrained: Option<PathBuf>,
+    /// How the pretrained network expected its input (see `infer::pretrained`).
+    #[serde(default)]
+    pub pretrained_input: InputConvention,
+    /// Keep each layer's strongest filters when the pretrained trunk is
+    /// wider than ours (magnitude pruning).
+    #[serde(default)]
+    pub pretrained_prune: bool,
+    /// The first this many trunk convolutions keep their starting weights.
+    #[serde(default)]
+    pub freeze: usize,
+    /// Compute the frozen layers' outputs once instead of on every step.
+    #[serde(default = "yes")]
+    pub cache_frozen: bool,
+}
+
+fn yes() -> bool {
+    true
 }
 
 impl TrainConfig {
@@ -57,6 +79,11 @@ impl TrainConfig {
             val_fraction: 0.1,
             augment: true,
             backend: CpuBackend::Flex,
+            pretrained: None,
+            pretrained_input: InputConvention::Auto,
+            pretrained_prune: false,
+            freeze: 0,
+            cache_frozen: true,
         }
     }
 
@@ -70,6 +97,13 @@ impl TrainConfig {
         }
         if !(self.weight_decay.is_finite() && self.weight_decay >= 0.0) {
             return Err(format!("weight decay {} must be >= 0", self.weight_decay));
+        }
+        let convs = self.detector.backbone.trunk_convs();
+        if self.freeze > convs {
+            return Err(format!(
+                "--freeze {} but the {} trunk has {convs} convolutions",
+                self.freeze, self.detector.backbone
+            ));
         }
         if !(0.0..0.9).contains(&self.val_fraction) {
             return Err(format!("validation fraction {} outside [0, 0.9)", self.val_fraction));

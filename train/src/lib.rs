@@ -1,7 +1,9 @@
 //! Training of the detectors: target assignment, losses, the training loop
 //! with its loss log, resumable state and checkpoints.
 
+pub mod compare;
 pub mod config;
+pub mod feature_cache;
 pub mod losses;
 pub mod step;
 pub mod targets;

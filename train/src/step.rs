@@ -16,26 +16,34 @@ use infer::network::Network;
 
 /// Network inputs with their ground-truth boxes in input pixels.
 pub struct Batch {
+    /// Images `[B, 1, S, S]` when `start` is 0, else the cached output of
+    /// the first `start` (frozen) trunk convolutions.
     pub inputs: Tensor<4>,
+    pub start: usize,
     pub boxes: Vec<Vec<BBox>>,
 }
 
 /// Stacks images (flipped left-right where `flips` says so) into a batch.
 pub fn make_batch(images: &[&LabeledImage], flips: &[bool], size: u32, device: &Device) -> Batch {
-    let mut edges = Vec::with_capacity(images.len());
-    let mut boxes = Vec::with_capacity(images.len());
-    for (im, &flip) in images.iter().zip(flips) {
-        let b = im.net_boxes(size);
-        if flip {
-            edges.push(flip_horizontal(&im.edges));
-            let s = size as f32;
-            boxes.push(b.iter().map(|b| BBox::new(s - b.x2, b.y1, s - b.x1, b.y2)).collect());
-        } else {
-            edges.push(im.edges.clone());
-            boxes.push(b);
-        }
-    }
-    Batch { inputs: input_tensor(&edges, device), boxes }
+    let edges: Vec<_> = images
+        .iter()
+        .zip(flips)
+        .map(|(im, &flip)| if flip { flip_horizontal(&im.edges) } else { im.edges.clone() })
+        .collect();
+    Batch { inputs: input_tensor(&edges, device), start: 0, boxes: batch_boxes(images, flips, size) }
+}
+
+/// The images' boxes in input pixels, mirrored where flipped.
+pub fn batch_boxes(images: &[&LabeledImage], flips: &[bool], size: u32) -> Vec<Vec<BBox>> {
+    let s = size as f32;
+    images
+        .iter()
+        .zip(flips)
+        .map(|(im, &flip)| {
+            let b = im.net_boxes(size);
+            if flip { b.iter().map(|b| BBox::new(s - b.x2, b.y1, s - b.x1, b.y2)).collect() } else { b }
+        })
+        .collect()
 }
 
 /// Weight of a positive cell in the grid heads' presence loss.
@@ -46,7 +54,7 @@ pub fn batch_losses(network: &Network, config: &DetectorConfig, batch: &Batch, r
     let size = config.input_size() as f32;
     match network {
         Network::FasterRcnn(m) => {
-            let features = m.trunk(batch.inputs.clone());
+            let features = m.trunk_from(batch.inputs.clone(), batch.start);
             let rpn = m.rpn(features.clone());
             let [b, n] = rpn.objectness.dims();
             let anchors = faster_rcnn::anchors_for(&config.anchors, rpn.grid_h, rpn.grid_w);
@@ -74,7 +82,7 @@ pub fn batch_losses(network: &Network, config: &DetectorConfig, batch: &Batch, r
             faster_rcnn_losses(&rpn, &rpn_t, head.as_ref(), &roi_t)
         }
         Network::Grid(m) => {
-            let out = m.forward(batch.inputs.clone());
+            let out = m.head(m.trunk_from(batch.inputs.clone(), batch.start));
             let targets: Vec<_> =
                 batch.boxes.iter().map(|truth| grid_targets(truth, config.grid_cells, size)).collect();
             grid_losses(&out, &targets, GRID_POSITIVE_WEIGHT)

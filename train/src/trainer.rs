@@ -9,7 +9,8 @@
 //!   `valid_epoch` (means over an epoch);
 //! - `resume/`: model, optimizer and progress after the last full epoch;
 //! - `checkpoint/`: the folder `infer` and `localize` load;
-//! - `metrics.json`: AP@0.5, precision, recall, pixel error on the test split.
+//! - `metrics.json`: AP@0.5, precision, recall, pixel error on the test split;
+//! - `pretrained.json`: with `--pretrained`, what was loaded from where.
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -28,13 +29,15 @@ use rand::seq::SliceRandom;
 use serde::{Deserialize, Serialize};
 
 use crate::config::{OptimizerKind, TrainConfig};
+use crate::feature_cache::{FeatureCache, MAX_CACHE_BYTES};
 use crate::losses::{FASTER_RCNN_PARTS, GRID_PARTS};
-use crate::step::{batch_losses, make_batch};
+use crate::step::{Batch, batch_boxes, batch_losses, make_batch};
 use infer::checkpoint::{self, CheckpointMeta};
 use infer::config::Backbone;
 use infer::labeled::{LabeledImage, load_coco_set};
 use infer::metrics::EvalMetrics;
 use infer::network::Network;
+use infer::pretrained::load_trunk;
 use infer::{Detector, eval};
 
 pub const CONFIG_FILE: &str = "train_config.json";
@@ -42,6 +45,8 @@ pub const LOSSES_FILE: &str = "losses.csv";
 pub const RESUME_DIR: &str = "resume";
 pub const CHECKPOINT_DIR: &str = "checkpoint";
 pub const METRICS_FILE: &str = "metrics.json";
+/// What `--pretrained` loaded: tensors, unused ones, the input convention.
+pub const PRETRAINED_FILE: &str = "pretrained.json";
 const STATE_FILE: &str = "state.json";
 const OPTIMIZER_STEM: &str = "optimizer";
 
@@ -162,7 +167,6 @@ pub fn train_until(
         bail!("{}: no training images", train_json.display());
     }
     let (train_set, valid_set) = split(&all, config.val_fraction, config.seed);
-    datasets::atomic::write_json(&run.join(CONFIG_FILE), &config)?;
 
     // Flex keeps one global RNG: seed it before the weights are drawn.
     device.seed(config.seed);
@@ -174,6 +178,37 @@ pub fn train_until(
         optim = optim.load(resume_dir.join(format!("{OPTIMIZER_STEM}.bpk"))).context("loading the optimizer state")?;
         (epochs_done, elapsed, csv) = (s.epochs_done, s.elapsed_s, s.csv);
         eprintln!("resuming {} after epoch {epochs_done} of {}", run.display(), config.epochs);
+    } else if let Some(path) = &config.pretrained {
+        let report = load_trunk(&mut network, det, path, config.pretrained_input, config.pretrained_prune)?;
+        if show_progress {
+            eprintln!(
+                "{}: {} tensors loaded ({:?} input convention); unused: {}",
+                path.display(),
+                report.loaded.len() * 2,
+                report.convention,
+                if report.unused.is_empty() { "none".to_string() } else { report.unused.join(", ") }
+            );
+            for s in &report.skipped {
+                eprintln!("  not loaded: {s}");
+            }
+        }
+        std::fs::create_dir_all(run).with_context(|| format!("{}: cannot create the run folder", run.display()))?;
+        datasets::atomic::write_json(&run.join(PRETRAINED_FILE), &report)?;
+    }
+    // Written once the settings proved usable (data read, weights loaded).
+    std::fs::create_dir_all(run).with_context(|| format!("{}: cannot create the run folder", run.display()))?;
+    datasets::atomic::write_json(&run.join(CONFIG_FILE), &config)?;
+    network = network.freeze_convs(config.freeze);
+    let started_caching = Instant::now();
+    let caches = frozen_feature_caches(&config, &network, &train_set, &valid_set, &inner, show_progress);
+    // Caching is part of what the run costs.
+    elapsed += started_caching.elapsed().as_secs_f64();
+    if caches.is_some() && show_progress {
+        eprintln!(
+            "cached the outputs of the {} frozen convolutions in {:.0} s",
+            config.freeze,
+            started_caching.elapsed().as_secs_f64()
+        );
     }
 
     let per_epoch = train_set.len().div_ceil(config.batch_size);
@@ -199,7 +234,14 @@ pub fn train_until(
             let iteration = epoch * per_epoch + k;
             let images: Vec<&LabeledImage> = chunk.iter().map(|&i| train_set[i]).collect();
             let flips: Vec<bool> = images.iter().map(|_| config.augment && crate::targets::coin(&mut rng)).collect();
-            let batch = make_batch(&images, &flips, size, &device);
+            let batch = match &caches {
+                Some((cache, _)) => Batch {
+                    inputs: cache.batch(chunk, &flips, &device),
+                    start: cache.start,
+                    boxes: batch_boxes(&images, &flips, size),
+                },
+                None => make_batch(&images, &flips, size, &device),
+            };
             let losses = batch_losses(&network, det, &batch, &mut rng);
             let values: Vec<f64> = std::iter::once(&losses.total)
                 .chain(losses.parts.iter().map(|(_, t)| t))
@@ -227,7 +269,7 @@ pub fn train_until(
         let lr = config.lr_at(end_iteration, total);
         let _ = writeln!(csv, "train_epoch,{},{end_iteration},{}", epoch + 1, row(&means, lr, elapsed));
         if !valid_set.is_empty() {
-            let v = validation_loss(&network, &config, &valid_set, &inner);
+            let v = validation_loss(&network, &config, &valid_set, caches.as_ref().map(|(_, v)| v), &inner);
             last_valid = Some(v[0]);
             let _ = writeln!(csv, "valid_epoch,{},{end_iteration},{}", epoch + 1, row(&v, lr, elapsed));
         }
@@ -289,7 +331,7 @@ fn meta_for(config: &TrainConfig, network: &Network, epochs: usize, seconds: f64
         dataset: config.data.display().to_string(),
         epochs,
         metrics: None,
-        pretrained: None,
+        pretrained: config.pretrained.as_ref().map(|p| p.display().to_string()),
         train_seconds: seconds,
         parameters: network.num_params(),
     }
@@ -297,14 +339,29 @@ fn meta_for(config: &TrainConfig, network: &Network, epochs: usize, seconds: f64
 
 /// Mean loss over the validation images, without dropout or gradients and
 /// with a fixed sampling seed, so epochs compare.
-fn validation_loss(network: &Network, config: &TrainConfig, valid: &[&LabeledImage], device: &Device) -> Vec<f64> {
+fn validation_loss(
+    network: &Network,
+    config: &TrainConfig,
+    valid: &[&LabeledImage],
+    cache: Option<&FeatureCache>,
+    device: &Device,
+) -> Vec<f64> {
     let model = network.valid();
     let mut rng = ChaCha8Rng::seed_from_u64(mix(config.seed, 0xda7a));
     let mut sums = [0.0f64; 5];
     let mut batches = 0;
-    for chunk in valid.chunks(config.batch_size) {
+    let ids: Vec<usize> = (0..valid.len()).collect();
+    for (chunk, ids) in valid.chunks(config.batch_size).zip(ids.chunks(config.batch_size)) {
         let flips = vec![false; chunk.len()];
-        let batch = make_batch(chunk, &flips, config.detector.preprocess.size, device);
+        let size = config.detector.preprocess.size;
+        let batch = match cache {
+            Some(cache) => Batch {
+                inputs: cache.batch(ids, &flips, device),
+                start: cache.start,
+                boxes: batch_boxes(chunk, &flips, size),
+            },
+            None => make_batch(chunk, &flips, size, device),
+        };
         let losses = batch_losses(&model, &config.detector, &batch, &mut rng);
         for (s, t) in sums.iter_mut().zip(std::iter::once(&losses.total).chain(losses.parts.iter().map(|(_, t)| t))) {
             *s += infer::host(t.clone())[0] as f64;
@@ -312,6 +369,36 @@ fn validation_loss(network: &Network, config: &TrainConfig, valid: &[&LabeledIma
         batches += 1;
     }
     sums.iter().map(|s| s / batches.max(1) as f64).collect()
+}
+
+/// The frozen layers' outputs for the training images (both orientations
+/// when flips are on) and the validation images, when something is frozen,
+/// caching is on and the cache fits in memory.
+fn frozen_feature_caches(
+    config: &TrainConfig,
+    network: &Network,
+    train_set: &[&LabeledImage],
+    valid_set: &[&LabeledImage],
+    device: &Device,
+    show_progress: bool,
+) -> Option<(FeatureCache, FeatureCache)> {
+    if config.freeze == 0 || !config.cache_frozen {
+        return None;
+    }
+    let size = config.detector.preprocess.size;
+    let entries = train_set.len() * if config.augment { 2 } else { 1 } + valid_set.len();
+    let bytes = FeatureCache::estimate_bytes(network, config.freeze, size, entries, device);
+    if bytes > MAX_CACHE_BYTES {
+        eprintln!(
+            "not caching the frozen features: {:.1} GiB is too much memory; freeze more layers to cache",
+            bytes as f64 / (1u64 << 30) as f64
+        );
+        return None;
+    }
+    let build = |images: &[&LabeledImage], flips| {
+        FeatureCache::build(network, images, flips, config.freeze, size, config.batch_size, device, show_progress)
+    };
+    Some((build(train_set, config.augment), build(valid_set, false)))
 }
 
 /// Writes the resume state atomically (a new folder renamed into place).

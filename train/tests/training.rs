@@ -6,7 +6,7 @@ mod common;
 
 use std::path::Path;
 
-use common::{tiny_config, tiny_data, train_losses};
+use common::{tiny_config, tiny_data};
 use infer::Detector;
 use infer::config::Backbone;
 
@@ -23,10 +23,19 @@ fn overfit(backbone: Backbone, epochs: usize, lr: f64) {
     let mut config = tiny_config(backbone, epochs);
     config.lr = lr;
     train::train(Some(config), run.path(), false).unwrap();
-    let losses = train_losses(run.path());
-    let start = losses[..2].iter().sum::<f64>() / 2.0;
-    let end = losses[losses.len() - 2..].iter().sum::<f64>() / 2.0;
-    assert!(end < 0.5 * start, "{backbone}: loss went from {start:.4} to {end:.4}: {losses:?}");
+    // Faster R-CNN's box loss is normalised over all sampled RoIs, so it
+    // grows as more proposals become positive while the network learns:
+    // its overfitting shows in the two classification parts (RPN
+    // objectness, RoI classifier). The grid networks' whole loss falls.
+    let csv = std::fs::read_to_string(run.path().join("losses.csv")).unwrap();
+    let epochs: Vec<Vec<f64>> = csv
+        .lines()
+        .filter(|l| l.starts_with("train_epoch,"))
+        .map(|l| l.split(',').skip(3).take(5).map(|v| v.parse().unwrap()).collect())
+        .collect();
+    let measure = |e: &Vec<f64>| if backbone == Backbone::FasterRcnn { e[1] + e[3] } else { e[0] };
+    let (start, end) = (measure(&epochs[0]), measure(&epochs[epochs.len() - 1]));
+    assert!(end < 0.5 * start, "{backbone}: loss went from {start:.4} to {end:.4}: {:?}", &epochs[epochs.len() - 3..]);
     for file in [
         "train_config.json",
         "losses.csv",
@@ -41,7 +50,7 @@ fn overfit(backbone: Backbone, epochs: usize, lr: f64) {
 
 #[test]
 fn faster_rcnn_overfits_a_few_images() {
-    overfit(Backbone::FasterRcnn, 40, 3e-3);
+    overfit(Backbone::FasterRcnn, 80, 2e-3);
 }
 
 #[test]

@@ -113,7 +113,7 @@ fn synthetic_batch(config: &DetectorConfig, batch: usize, device: &Device) -> Ba
                 .collect()
         })
         .collect();
-    Batch { inputs: infer::detector::input_tensor(&edges, device), boxes }
+    Batch { inputs: infer::detector::input_tensor(&edges, device), start: 0, boxes }
 }
 
 fn measure(backbone: Backbone, backend: CpuBackend, width: f32, batch: usize, steps: usize) -> Result<Figures> {

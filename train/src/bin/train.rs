@@ -7,6 +7,7 @@ use anyhow::{Result, bail};
 use clap::Parser;
 use infer::backend::CpuBackend;
 use infer::config::{Backbone, DEFAULT_WIDTH};
+use infer::pretrained::InputConvention;
 use train::{OptimizerKind, TrainConfig};
 
 #[derive(Debug, Parser)]
@@ -43,6 +44,26 @@ struct Args {
     no_augment: bool,
     #[arg(long, value_enum, default_value_t)]
     backend: CpuBackend,
+    /// Width of the fully connected layers (default: 4096 x width^2, at least 64).
+    #[arg(long)]
+    hidden: Option<usize>,
+    /// Start the trunk from these weights: torchvision-named `.pth`/`.pt` or
+    /// `.safetensors` (VGG16, AlexNet, HED), or a trunk written by `pretrain`.
+    #[arg(long)]
+    pretrained: Option<PathBuf>,
+    /// How the pretrained network expected its input.
+    #[arg(long, value_enum, default_value_t, requires = "pretrained")]
+    pretrained_input: InputConvention,
+    /// When the pretrained trunk is wider than --width, keep each layer's
+    /// strongest filters (largest L1 norm) instead of refusing it.
+    #[arg(long, requires = "pretrained")]
+    pretrained_prune: bool,
+    /// Keep the first N trunk convolutions at their starting weights.
+    #[arg(long, default_value_t = 0)]
+    freeze: usize,
+    /// Run the frozen layers on every step instead of caching their outputs.
+    #[arg(long)]
+    no_cache: bool,
 }
 
 fn main() -> Result<()> {
@@ -72,6 +93,19 @@ fn main() -> Result<()> {
             c.seed = args.seed;
             c.augment = !args.no_augment;
             c.backend = args.backend;
+            if let Some(h) = args.hidden {
+                c.detector.hidden = h;
+            }
+            if let Some(p) = &args.pretrained {
+                if !p.is_file() {
+                    bail!("--pretrained {}: no such file", p.display());
+                }
+            }
+            c.pretrained = args.pretrained.clone();
+            c.pretrained_input = args.pretrained_input;
+            c.pretrained_prune = args.pretrained_prune;
+            c.freeze = args.freeze;
+            c.cache_frozen = !args.no_cache;
             (Some(c), out.clone())
         }
         _ => bail!("give --backbone, --data and --out, or --resume RUN_DIR"),

@@ -34,6 +34,7 @@ pub fn tiny_config(backbone: Backbone, epochs: usize) -> TrainConfig {
 }
 
 /// The per-iteration training losses of a run.
+#[allow(dead_code)] // not every test binary uses it
 pub fn train_losses(run: &Path) -> Vec<f64> {
     let csv = std::fs::read_to_string(run.join("losses.csv")).unwrap();
     csv.lines().filter(|l| l.starts_with("train,")).map(|l| l.split(',').nth(3).unwrap().parse().unwrap()).collect()

@@ -1,0 +1,115 @@
+//! The pretraining corpus: detection images from many worlds that differ
+//! from the evaluation data in geometry (level heights, ramp slope, ceiling
+//! height, corridor width), appearance (colours, posters) and views, so that
+//! a trunk pretrained on it has never seen the images it is evaluated on.
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::atomic;
+use crate::error::{DataError, Result};
+use crate::generate::{DatagenConfig, key, progress, render_views, stream, write_coco_splits};
+use crate::world::layout::{mix, unit};
+use crate::world::rig::Rig;
+use crate::world::{World, WorldConfig};
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CorpusConfig {
+    /// Seed of the worlds' geometry and appearance and of the views.
+    pub seed: u64,
+    pub worlds: usize,
+    pub images_per_world: usize,
+    /// Every this-many-th image goes to the corpus's own test split.
+    pub test_every: usize,
+}
+
+impl Default for CorpusConfig {
+    fn default() -> Self {
+        Self { seed: 1001, worlds: 16, images_per_world: 250, test_every: 20 }
+    }
+}
+
+/// Written beside the images; a corpus whose file matches is reused.
+pub const CORPUS_FILE: &str = "corpus.json";
+
+impl CorpusConfig {
+    pub fn images(&self) -> usize {
+        self.worlds * self.images_per_world
+    }
+
+    pub fn validate(&self) -> std::result::Result<(), String> {
+        if self.worlds == 0 || self.images_per_world == 0 {
+            return Err("the corpus needs at least one world and one image per world".into());
+        }
+        if self.test_every < 2 {
+            return Err(format!("test_every {} must be at least 2", self.test_every));
+        }
+        Ok(())
+    }
+
+    /// World `k`'s geometry: every setting drawn within the ranges that keep
+    /// the three-level area valid.
+    pub fn world(&self, k: usize) -> WorldConfig {
+        let u = |field: u64| unit(mix(self.seed ^ mix(k as u64 * 16 + field)));
+        let lerp = |field: u64, lo: f64, hi: f64| lo + (hi - lo) * u(field);
+        let rise1 = lerp(1, 0.3, 0.8);
+        let rise2 = lerp(2, 0.3, 0.8);
+        let top = rise1 + rise2;
+        WorldConfig {
+            level_heights_m: [0.0, rise1, top],
+            ramp_slope_deg: lerp(3, 6.0, 14.0),
+            ceiling_height_m: top + lerp(4, 2.2, 3.2),
+            corridor_width_m: lerp(5, 1.8, 3.0),
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct CorpusSummary {
+    pub images: usize,
+    pub labels: usize,
+    /// The corpus was already there, with the same settings.
+    pub reused: bool,
+}
+
+/// Writes the corpus into `out` (`images/`, `canny/`, `train.json`,
+/// `test.json`, `corpus.json`) unless it is already there with the same
+/// settings. `base` gives the camera labels and preprocessing.
+pub fn generate_corpus(out: &Path, config: &CorpusConfig, base: &DatagenConfig) -> Result<CorpusSummary> {
+    config.validate().map_err(|m| DataError::invalid(out, format!("invalid corpus settings: {m}")))?;
+    let marker = out.join(CORPUS_FILE);
+    let stamp = serde_json::json!({ "corpus": config, "labels": base.labels, "preprocess": base.preprocess });
+    if let Ok(text) = std::fs::read_to_string(&marker)
+        && serde_json::from_str::<serde_json::Value>(&text).ok().as_ref() == Some(&stamp)
+    {
+        let labels = crate::formats::read_coco(&out.join("train.json"))?.annotations.len()
+            + crate::formats::read_coco(&out.join("test.json"))?.annotations.len();
+        return Ok(CorpusSummary { images: config.images(), labels, reused: true });
+    }
+    let rig = Rig::default();
+    let bar = progress(config.images(), "corpus");
+    // The views' seed is salted so that no corpus view repeats a datagen view.
+    let views_seed = mix(config.seed ^ 0xc0_4905);
+    let mut views = Vec::with_capacity(config.images());
+    for k in 0..config.worlds {
+        let world = World::new(&config.world(k), key(config.seed, stream::APPEARANCE, k as u64 + 1));
+        let first = k * config.images_per_world;
+        views.extend(render_views(
+            out,
+            &world,
+            &rig,
+            base,
+            views_seed,
+            first..first + config.images_per_world,
+            "",
+            &bar,
+        )?);
+    }
+    bar.finish_and_clear();
+    let train: Vec<bool> = (0..views.len()).map(|i| i % config.test_every != 0).collect();
+    let labels = write_coco_splits(out, views, &train)?;
+    atomic::write_json(&marker, &stamp)?;
+    Ok(CorpusSummary { images: config.images(), labels, reused: false })
+}

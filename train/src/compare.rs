@@ -1,0 +1,314 @@
+//! Comparison of training runs (the paper's Table 1 and Figure 8a): each
+//! run's loss log and metrics read back from its folder, one picture of all
+//! loss curves and one table.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use datasets::plot::{canvas, plot_error, register_font, write_png};
+use infer::checkpoint::{self, CheckpointMeta};
+use infer::metrics::EvalMetrics;
+use plotters::coord::Shift;
+use plotters::prelude::*;
+
+use crate::config::TrainConfig;
+use crate::trainer::{CHECKPOINT_DIR, CONFIG_FILE, LOSSES_FILE, METRICS_FILE};
+
+/// One point of a loss curve.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LossPoint {
+    pub epoch: usize,
+    pub iteration: usize,
+    pub loss: f64,
+    pub elapsed_s: f64,
+}
+
+/// What the comparison needs of one run folder.
+#[derive(Debug, Clone)]
+pub struct RunRecord {
+    pub name: String,
+    pub dir: PathBuf,
+    pub config: TrainConfig,
+    /// Loss of every training iteration.
+    pub iterations: Vec<LossPoint>,
+    /// Mean training loss of every epoch.
+    pub train_epochs: Vec<LossPoint>,
+    /// Validation loss after every epoch.
+    pub valid_epochs: Vec<LossPoint>,
+    pub metrics: Option<EvalMetrics>,
+    pub meta: Option<CheckpointMeta>,
+}
+
+impl RunRecord {
+    pub fn final_train(&self) -> Option<f64> {
+        self.train_epochs.last().map(|p| p.loss)
+    }
+
+    pub fn final_valid(&self) -> Option<f64> {
+        self.valid_epochs.last().map(|p| p.loss)
+    }
+
+    pub fn seconds(&self) -> Option<f64> {
+        self.meta.as_ref().map(|m| m.train_seconds).or_else(|| self.train_epochs.last().map(|p| p.elapsed_s))
+    }
+
+    /// `pretrained file` (or `scratch`), with the frozen layers.
+    pub fn start(&self) -> String {
+        let from = match &self.config.pretrained {
+            Some(p) => {
+                p.file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_else(|| p.display().to_string())
+            }
+            None => "scratch".into(),
+        };
+        if self.config.freeze > 0 { format!("{from}, {} frozen", self.config.freeze) } else { from }
+    }
+}
+
+/// Reads a run folder written by `train`.
+pub fn read_run(dir: &Path) -> Result<RunRecord> {
+    let config_path = dir.join(CONFIG_FILE);
+    if !config_path.is_file() {
+        bail!("{}: not a training run (no {CONFIG_FILE})", dir.display());
+    }
+    let text = datasets::atomic::read_text(&config_path)?;
+    let config: TrainConfig =
+        serde_json::from_str(&text).with_context(|| format!("{}: invalid settings", config_path.display()))?;
+    let losses_path = dir.join(LOSSES_FILE);
+    let text = datasets::atomic::read_text(&losses_path)?;
+    let (iterations, train_epochs, valid_epochs) =
+        parse_losses(&text).with_context(|| losses_path.display().to_string())?;
+    if train_epochs.is_empty() {
+        bail!("{}: no completed epoch yet", losses_path.display());
+    }
+    let metrics_path = dir.join(METRICS_FILE);
+    let metrics = if metrics_path.is_file() {
+        let text = datasets::atomic::read_text(&metrics_path)?;
+        Some(serde_json::from_str(&text).with_context(|| format!("{}: invalid metrics", metrics_path.display()))?)
+    } else {
+        None
+    };
+    let meta = checkpoint::read_meta(&dir.join(CHECKPOINT_DIR)).ok();
+    let name = dir.file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_else(|| dir.display().to_string());
+    Ok(RunRecord { name, dir: dir.to_path_buf(), config, iterations, train_epochs, valid_epochs, metrics, meta })
+}
+
+type Curves = (Vec<LossPoint>, Vec<LossPoint>, Vec<LossPoint>);
+
+/// Splits `losses.csv` into per-iteration, per-epoch training and
+/// validation points, by the header's column names.
+pub fn parse_losses(text: &str) -> Result<Curves> {
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().context("empty loss log")?.split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).with_context(|| format!("no column {name}"));
+    let (kind, epoch, iteration, loss, elapsed) =
+        (col("kind")?, col("epoch")?, col("iteration")?, col("loss")?, col("elapsed_s")?);
+    let mut out: Curves = Default::default();
+    for (n, line) in lines.enumerate() {
+        let f: Vec<&str> = line.split(',').collect();
+        let bad = || format!("line {}: cannot read {line:?}", n + 2);
+        if f.len() != header.len() {
+            bail!(bad());
+        }
+        let point = LossPoint {
+            epoch: f[epoch].parse().with_context(bad)?,
+            iteration: f[iteration].parse().with_context(bad)?,
+            loss: f[loss].parse().with_context(bad)?,
+            elapsed_s: f[elapsed].parse().with_context(bad)?,
+        };
+        match f[kind] {
+            "train" => out.0.push(point),
+            "train_epoch" => out.1.push(point),
+            "valid_epoch" => out.2.push(point),
+            other => bail!("line {}: unknown row kind {other:?}", n + 2),
+        }
+    }
+    Ok(out)
+}
+
+/// How much lower the first run's final training loss is than `other`'s, in
+/// percent of the other's (the paper's 55.18% and 69.05%).
+pub fn reduction_percent(first: f64, other: f64) -> f64 {
+    100.0 * (other - first) / other
+}
+
+fn fmt(v: Option<f64>, digits: usize) -> String {
+    v.map(|v| format!("{v:.digits$}")).unwrap_or_else(|| "-".into())
+}
+
+const COLUMNS: [&str; 13] = [
+    "run",
+    "backbone",
+    "width",
+    "start",
+    "epochs",
+    "final train loss",
+    "final valid loss",
+    "first run's train loss lower by (%)",
+    "AP@0.5",
+    "AP rank",
+    "pixel error (px)",
+    "train time (min)",
+    "folder",
+];
+
+/// The table's rows, as text cells in the order of [`COLUMNS`].
+fn rows(runs: &[RunRecord]) -> Vec<Vec<String>> {
+    let first = runs.first().and_then(RunRecord::final_train);
+    let mut by_ap: Vec<(usize, f64)> =
+        runs.iter().enumerate().filter_map(|(i, r)| r.metrics.as_ref().map(|m| (i, m.ap50))).collect();
+    by_ap.sort_by(|a, b| b.1.total_cmp(&a.1));
+    runs.iter()
+        .enumerate()
+        .map(|(i, r)| {
+            let reduction = match (i, first, r.final_train()) {
+                (0, ..) => "-".to_string(),
+                (_, Some(f), Some(o)) => format!("{:.2}", reduction_percent(f, o)),
+                _ => "-".into(),
+            };
+            let rank = by_ap.iter().position(|(k, _)| *k == i).map(|p| (p + 1).to_string()).unwrap_or("-".into());
+            vec![
+                r.name.clone(),
+                r.config.detector.backbone.to_string(),
+                format!("{}", r.config.detector.width),
+                r.start(),
+                r.train_epochs.len().to_string(),
+                fmt(r.final_train(), 4),
+                fmt(r.final_valid(), 4),
+                reduction,
+                fmt(r.metrics.as_ref().map(|m| m.ap50), 3),
+                rank,
+                fmt(r.metrics.as_ref().and_then(|m| m.mean_pixel_error), 2),
+                fmt(r.seconds().map(|s| s / 60.0), 1),
+                r.dir.display().to_string(),
+            ]
+        })
+        .collect()
+}
+
+pub const LOSS_NOTE: &str = "The losses are different functions: faster-rcnn's is the sum of the RPN objectness, \
+RPN box, classifier and box-regression losses; vgg16's and alexnet's is the grid head's presence, offset and size \
+losses. Their values (and the percentages) compare training progress, not detectors: rank the networks by AP@0.5.";
+
+pub fn markdown_table(runs: &[RunRecord]) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "| {} |", COLUMNS.join(" | "));
+    let _ = writeln!(s, "|{}", "---|".repeat(COLUMNS.len()));
+    for row in rows(runs) {
+        let _ = writeln!(s, "| {} |", row.join(" | "));
+    }
+    let _ = writeln!(s, "\n{LOSS_NOTE}");
+    s
+}
+
+pub fn csv_table(runs: &[RunRecord]) -> String {
+    let quote = |c: &str| {
+        if c.contains(',') || c.contains('"') { format!("\"{}\"", c.replace('"', "\"\"")) } else { c.to_string() }
+    };
+    let mut s = COLUMNS.iter().map(|c| quote(c)).collect::<Vec<_>>().join(",") + "\n";
+    for row in rows(runs) {
+        s += &(row.iter().map(|c| quote(c)).collect::<Vec<_>>().join(",") + "\n");
+    }
+    s
+}
+
+const PALETTE: [RGBColor; 8] = [
+    RGBColor(31, 119, 180),
+    RGBColor(214, 39, 40),
+    RGBColor(44, 160, 44),
+    RGBColor(255, 127, 14),
+    RGBColor(148, 103, 189),
+    RGBColor(140, 86, 75),
+    RGBColor(227, 119, 194),
+    RGBColor(23, 190, 207),
+];
+
+const PLOT_SIZE: (u32, u32) = (1400, 560);
+
+/// Writes the loss curves of all runs as `stem.png` and `stem.svg`.
+pub fn write_loss_plots(runs: &[RunRecord], stem: &Path) -> Result<()> {
+    register_font();
+    let png = stem.with_extension("png");
+    let mut pixels = canvas(PLOT_SIZE.0, PLOT_SIZE.1);
+    draw(BitMapBackend::with_buffer(&mut pixels, PLOT_SIZE).into_drawing_area(), runs)
+        .map_err(|e| plot_error(&png, e))?;
+    write_png(&png, PLOT_SIZE.0, PLOT_SIZE.1, pixels)?;
+    let svg_path = stem.with_extension("svg");
+    let mut svg = String::new();
+    draw(SVGBackend::with_string(&mut svg, PLOT_SIZE).into_drawing_area(), runs)
+        .map_err(|e| plot_error(&svg_path, e))?;
+    datasets::atomic::write_bytes(&svg_path, svg.as_bytes())?;
+    Ok(())
+}
+
+/// Left: training loss against iterations (every iteration faint, epoch
+/// means solid). Right: training (solid) and validation (dashed) loss
+/// against epochs. Log scale, as the runs' losses differ by their kind.
+fn draw<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, runs: &[RunRecord]) -> Result<(), String>
+where
+    DB::ErrorType: 'static,
+{
+    let e = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
+    root.fill(&WHITE).map_err(e)?;
+    let all = runs.iter().flat_map(|r| r.iterations.iter().chain(&r.train_epochs).chain(&r.valid_epochs));
+    let (lo, hi) = all.fold((f64::MAX, f64::MIN), |(lo, hi), p| {
+        if p.loss > 0.0 && p.loss.is_finite() { (lo.min(p.loss), hi.max(p.loss)) } else { (lo, hi) }
+    });
+    let (lo, hi) = if lo < hi { (lo * 0.8, hi * 1.25) } else { (0.01, 10.0) };
+    let max_iter = runs.iter().flat_map(|r| r.iterations.last()).map(|p| p.iteration).max().unwrap_or(1).max(1);
+    let max_epoch = runs.iter().map(|r| r.train_epochs.len()).max().unwrap_or(1).max(1);
+    let (left, right) = root.split_horizontally(PLOT_SIZE.0 / 2);
+
+    let mut chart = ChartBuilder::on(&left)
+        .caption("training loss by iteration", ("sans-serif", 22))
+        .margin(14)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0f64..max_iter as f64, (lo..hi).log_scale())
+        .map_err(e)?;
+    chart.configure_mesh().x_desc("iteration").y_desc("loss").draw().map_err(e)?;
+    for (r, colour) in runs.iter().zip(PALETTE.iter().cycle()) {
+        let faint = colour.mix(0.25);
+        chart
+            .draw_series(LineSeries::new(r.iterations.iter().map(|p| (p.iteration as f64, p.loss)), faint))
+            .map_err(e)?;
+        let colour = *colour;
+        chart
+            .draw_series(LineSeries::new(
+                r.train_epochs.iter().map(|p| (p.iteration as f64, p.loss)),
+                colour.stroke_width(2),
+            ))
+            .map_err(e)?
+            .label(format!("{} ({}, {})", r.name, r.config.detector.backbone, r.start()))
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], colour.stroke_width(3)));
+    }
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperRight)
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .label_font(("sans-serif", 14))
+        .draw()
+        .map_err(e)?;
+
+    let mut chart = ChartBuilder::on(&right)
+        .caption("training (solid) and validation (dashed) loss by epoch", ("sans-serif", 22))
+        .margin(14)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0.5f64..max_epoch as f64 + 0.5, (lo..hi).log_scale())
+        .map_err(e)?;
+    chart.configure_mesh().x_desc("epoch").y_desc("loss").draw().map_err(e)?;
+    for (r, colour) in runs.iter().zip(PALETTE.iter().cycle()) {
+        chart
+            .draw_series(LineSeries::new(
+                r.train_epochs.iter().map(|p| (p.epoch as f64, p.loss)),
+                colour.stroke_width(2),
+            ))
+            .map_err(e)?;
+        let valid: Vec<(f64, f64)> = r.valid_epochs.iter().map(|p| (p.epoch as f64, p.loss)).collect();
+        chart.draw_series(DashedLineSeries::new(valid, 8, 5, colour.stroke_width(2))).map_err(e)?;
+    }
+    root.present().map_err(e)?;
+    Ok(())
+}

@@ -1,0 +1,156 @@
+//! Transfer learning: a trunk file written by one network starts another;
+//! frozen convolutions stay bit-identical through training while the rest
+//! trains; cached frozen features give the same losses as running the
+//! frozen layers on every step; a file of another network is refused.
+
+mod common;
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use burn::prelude::*;
+use common::{tiny_config, train_losses};
+use infer::checkpoint;
+use infer::config::Backbone;
+use infer::network::Network;
+use infer::pretrained::{read_tensors, save_trunk};
+
+fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
+    static TURN: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    TURN.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+/// A trunk file from a freshly drawn network of the tiny config's shape.
+fn trunk_file(backbone: Backbone, dir: &Path, seed: u64) -> std::path::PathBuf {
+    let config = tiny_config(backbone, 1).detector;
+    let device = Device::flex();
+    device.seed(seed);
+    let network = Network::new(&config, &device);
+    let path = dir.join(format!("{backbone}-trunk.safetensors"));
+    save_trunk(&network, backbone, &path, HashMap::from([("note".into(), "test".into())])).unwrap();
+    path
+}
+
+fn conv_weights(run: &Path) -> Vec<Vec<f32>> {
+    let config = checkpoint::read_config(&run.join("checkpoint")).unwrap();
+    let network = checkpoint::load_weights(&run.join("checkpoint"), &config, &Device::flex()).unwrap();
+    network.trunk_convs().iter().map(|c| infer::host(c.weight.val())).collect()
+}
+
+#[test]
+fn frozen_convolutions_stay_bit_identical_and_the_rest_trains() {
+    let _turn = one_at_a_time();
+    let dir = tempfile::tempdir().unwrap();
+    let file = trunk_file(Backbone::Vgg16, dir.path(), 7);
+    let start = read_tensors(&file).unwrap();
+    let run = dir.path().join("run");
+    let mut config = tiny_config(Backbone::Vgg16, 2);
+    config.pretrained = Some(file.clone());
+    config.freeze = 4;
+    train::train(Some(config), &run, false).unwrap();
+    let trained = conv_weights(&run);
+    for (i, w) in trained.iter().enumerate() {
+        let index = infer::pretrained::VGG16_FEATURE_INDEX[i];
+        let before = &start[&format!("features.{index}.weight")].values;
+        if i < 4 {
+            assert_eq!(w, before, "frozen convolution {i} changed");
+        } else {
+            assert_ne!(w, before, "convolution {i} did not train");
+        }
+    }
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.join("pretrained.json")).unwrap()).unwrap();
+    assert_eq!(report["loaded"].as_array().unwrap().len(), 15);
+    let meta = checkpoint::read_meta(&run.join("checkpoint")).unwrap();
+    assert_eq!(meta.pretrained.as_deref(), Some(file.to_str().unwrap()));
+}
+
+#[test]
+fn cached_frozen_features_give_the_losses_of_running_the_layers() {
+    let _turn = one_at_a_time();
+    let dir = tempfile::tempdir().unwrap();
+    let file = trunk_file(Backbone::FasterRcnn, dir.path(), 9);
+    let mut losses = Vec::new();
+    for cache in [true, false] {
+        let run = dir.path().join(format!("run-{cache}"));
+        let mut config = tiny_config(Backbone::FasterRcnn, 2);
+        config.pretrained = Some(file.clone());
+        config.freeze = 7;
+        config.cache_frozen = cache;
+        // Flips on: the cache must hold both orientations.
+        config.augment = true;
+        config.val_fraction = 0.25;
+        train::train(Some(config), &run, false).unwrap();
+        losses.push(train_losses(&run));
+    }
+    assert_eq!(losses[0].len(), losses[1].len());
+    for (a, b) in losses[0].iter().zip(&losses[1]) {
+        assert!((a - b).abs() <= 1e-4 * a.abs().max(1.0), "cached {a} vs uncached {b}");
+    }
+}
+
+#[test]
+fn a_trunk_of_another_network_is_refused_before_training() {
+    let _turn = one_at_a_time();
+    let dir = tempfile::tempdir().unwrap();
+    let file = trunk_file(Backbone::Alexnet, dir.path(), 3);
+    let mut config = tiny_config(Backbone::Vgg16, 1);
+    config.pretrained = Some(file);
+    let err = train::train(Some(config), &dir.path().join("run"), false).unwrap_err();
+    let text = format!("{err:#}");
+    assert!(text.contains("alexnet-trunk.safetensors") && text.contains("missing: features.12.weight"), "{text}");
+    assert!(!dir.path().join("run/losses.csv").exists());
+}
+
+#[test]
+fn corpus_worlds_differ_and_are_valid() {
+    let c = datasets::corpus::CorpusConfig::default();
+    let worlds: Vec<_> = (0..c.worlds).map(|k| c.world(k)).collect();
+    for w in &worlds {
+        w.validate().unwrap();
+    }
+    assert_ne!(worlds[0], worlds[1]);
+    // None is the evaluation data's geometry.
+    assert!(worlds.iter().all(|w| *w != datasets::world::WorldConfig::default()));
+}
+
+#[test]
+fn pretrain_writes_a_trunk_that_train_accepts() {
+    let _turn = one_at_a_time();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("pre");
+    let run = |extra: &[&str]| {
+        let status = std::process::Command::new(env!("CARGO_BIN_EXE_pretrain"))
+            .args(["--backbone", "alexnet", "--width", "0.125", "--worlds", "2", "--images-per-world", "5"])
+            .args(["--epochs", "1", "--out"])
+            .arg(&out)
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(status.status.success(), "{}", String::from_utf8_lossy(&status.stderr));
+        String::from_utf8_lossy(&status.stderr).into_owned()
+    };
+    run(&[]);
+    let meta: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("meta.json")).unwrap()).unwrap();
+    assert_eq!(meta["corpus_images"], 10);
+    assert_eq!(meta["backbone"], "alexnet");
+    // Run again: the corpus is reused, the finished run is not retrained.
+    let second = run(&[]);
+    assert!(second.contains("(reused)"), "{second}");
+
+    let mut config = tiny_config(Backbone::Alexnet, 1);
+    config.pretrained = Some(out.join("trunk.safetensors"));
+    let detector = config.detector.clone();
+    let mut network = Network::new(&detector, &Device::flex());
+    let report = infer::pretrained::load_trunk(
+        &mut network,
+        &detector,
+        &out.join("trunk.safetensors"),
+        config.pretrained_input,
+        false,
+    )
+    .unwrap();
+    assert_eq!(report.loaded.len(), 7, "{report:?}");
+    assert!(report.unused.iter().all(|k| !k.starts_with("features.")), "{report:?}");
+}
