@@ -61,6 +61,7 @@ impl RunRecord {
             }
             None => "scratch".into(),
         };
+        let from = if self.config.pretrained_prune { format!("{from}, pruned") } else { from };
         if self.config.freeze > 0 { format!("{from}, {} frozen", self.config.freeze) } else { from }
     }
 }
