@@ -96,16 +96,7 @@ pub fn generate_corpus(out: &Path, config: &CorpusConfig, base: &DatagenConfig) 
     for k in 0..config.worlds {
         let world = World::new(&config.world(k), key(config.seed, stream::APPEARANCE, k as u64 + 1));
         let first = k * config.images_per_world;
-        views.extend(render_views(
-            out,
-            &world,
-            &rig,
-            base,
-            views_seed,
-            first..first + config.images_per_world,
-            "",
-            &bar,
-        )?);
+        views.extend(render_views(out, &world, &rig, base, views_seed, first..first + config.images_per_world, &bar)?);
     }
     bar.finish_and_clear();
     let train: Vec<bool> = (0..views.len()).map(|i| i % config.test_every != 0).collect();

@@ -252,7 +252,7 @@ fn random_robot_pose(world: &World, rng: &mut ChaCha8Rng) -> Pose3 {
 fn write_detection_set(dir: &Path, world: &World, rig: &Rig, config: &DatagenConfig) -> Result<(usize, usize)> {
     let n = config.detection.images;
     let bar = progress(n, "detection");
-    let views = render_views(dir, world, rig, config, config.seed, 0..n, "", &bar)?;
+    let views = render_views(dir, world, rig, config, config.seed, 0..n, &bar)?;
     bar.finish_and_clear();
     let train: Vec<bool> = (0..n).map(|i| i < config.detection.train).collect();
     let labels = write_coco_splits(dir, views, &train)?;
@@ -260,7 +260,7 @@ fn write_detection_set(dir: &Path, world: &World, rig: &Rig, config: &DatagenCon
 }
 
 /// Renders random views `indices` of `world` into `dir/images` and
-/// `dir/canny` (files `{prefix}{i:06}.png`, COCO ids `i + 1`), with their
+/// `dir/canny` (files `{i:06}.png`, COCO ids `i + 1`), with their
 /// visible corners. `seed` picks the views and the lighting.
 pub(crate) fn render_views(
     dir: &Path,
@@ -269,7 +269,6 @@ pub(crate) fn render_views(
     config: &DatagenConfig,
     seed: u64,
     indices: std::ops::Range<usize>,
-    prefix: &str,
     bar: &ProgressBar,
 ) -> Result<Vec<(CocoImage, Vec<CornerLabel>)>> {
     indices
@@ -281,7 +280,7 @@ pub(crate) fn render_views(
             let lighting = Lighting::varied(k, world.layout.lights.len());
             let image = render(world, &rig.camera, &world_from_camera, &lighting);
             let labels = visible_corners(world, &rig.camera, &world_from_camera, &config.labels);
-            let name = format!("{prefix}{i:06}.png");
+            let name = format!("{i:06}.png");
             let image = DynamicImage::ImageRgb8(image);
             atomic::write_image(
                 &dir.join("canny").join(&name),

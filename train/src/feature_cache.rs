@@ -9,7 +9,8 @@ use std::collections::HashMap;
 use burn::prelude::*;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::step::make_batch;
+use image::imageops::flip_horizontal;
+use infer::detector::input_tensor;
 use infer::labeled::LabeledImage;
 use infer::network::Network;
 
@@ -40,7 +41,6 @@ impl FeatureCache {
         images: &[&LabeledImage],
         flips: bool,
         start: usize,
-        size: u32,
         batch_size: usize,
         device: &Device,
         show_progress: bool,
@@ -57,10 +57,11 @@ impl FeatureCache {
         let mut entries = HashMap::with_capacity(keys.len());
         let mut shape = [0; 3];
         for chunk in keys.chunks(batch_size) {
-            let ims: Vec<&LabeledImage> = chunk.iter().map(|&(i, _)| images[i]).collect();
-            let flipped: Vec<bool> = chunk.iter().map(|&(_, f)| f).collect();
-            let batch = make_batch(&ims, &flipped, size, device);
-            let out = model.trunk_until(batch.inputs, start);
+            let edges: Vec<_> = chunk
+                .iter()
+                .map(|&(i, f)| if f { flip_horizontal(&images[i].edges) } else { images[i].edges.clone() })
+                .collect();
+            let out = model.trunk_until(input_tensor(&edges, device), start);
             let [b, c, h, w] = out.dims();
             shape = [c, h, w];
             let values = infer::host(out);

@@ -396,7 +396,7 @@ fn frozen_feature_caches(
         return None;
     }
     let build = |images: &[&LabeledImage], flips| {
-        FeatureCache::build(network, images, flips, config.freeze, size, config.batch_size, device, show_progress)
+        FeatureCache::build(network, images, flips, config.freeze, config.batch_size, device, show_progress)
     };
     Some((build(train_set, config.augment), build(valid_set, false)))
 }

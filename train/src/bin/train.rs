@@ -96,10 +96,10 @@ fn main() -> Result<()> {
             if let Some(h) = args.hidden {
                 c.detector.hidden = h;
             }
-            if let Some(p) = &args.pretrained {
-                if !p.is_file() {
-                    bail!("--pretrained {}: no such file", p.display());
-                }
+            if let Some(p) = &args.pretrained
+                && !p.is_file()
+            {
+                bail!("--pretrained {}: no such file", p.display());
             }
             c.pretrained = args.pretrained.clone();
             c.pretrained_input = args.pretrained_input;
