@@ -9,8 +9,7 @@ use std::collections::HashMap;
 use burn::prelude::*;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use image::imageops::flip_horizontal;
-use infer::detector::input_tensor;
+use crate::step::{Batch, batch_boxes, batch_inputs, make_batch};
 use infer::labeled::LabeledImage;
 use infer::network::Network;
 
@@ -57,11 +56,9 @@ impl FeatureCache {
         let mut entries = HashMap::with_capacity(keys.len());
         let mut shape = [0; 3];
         for chunk in keys.chunks(batch_size) {
-            let edges: Vec<_> = chunk
-                .iter()
-                .map(|&(i, f)| if f { flip_horizontal(&images[i].edges) } else { images[i].edges.clone() })
-                .collect();
-            let out = model.trunk_until(input_tensor(&edges, device), start);
+            let ims: Vec<&LabeledImage> = chunk.iter().map(|&(i, _)| images[i]).collect();
+            let flipped: Vec<bool> = chunk.iter().map(|&(_, f)| f).collect();
+            let out = model.trunk_until(batch_inputs(&ims, &flipped, device), start);
             let [b, c, h, w] = out.dims();
             shape = [c, h, w];
             let values = infer::host(out);
@@ -75,9 +72,30 @@ impl FeatureCache {
         Self { start, shape, entries }
     }
 
+    /// The training batch of images `ids` of the set the cache was built
+    /// from: their cached features when there is a cache, else the images.
+    pub fn batch_of(
+        cache: Option<&Self>,
+        images: &[&LabeledImage],
+        ids: &[usize],
+        flips: &[bool],
+        size: u32,
+        device: &Device,
+    ) -> Batch {
+        let chosen: Vec<&LabeledImage> = ids.iter().map(|&i| images[i]).collect();
+        match cache {
+            Some(cache) => Batch {
+                inputs: cache.features(ids, flips, device),
+                start: cache.start,
+                boxes: batch_boxes(&chosen, flips, size),
+            },
+            None => make_batch(&chosen, flips, size, device),
+        }
+    }
+
     /// The cached features of images `ids` (flipped where `flips` says) as
     /// one batch on `device`.
-    pub fn batch(&self, ids: &[usize], flips: &[bool], device: &Device) -> Tensor<4> {
+    pub fn features(&self, ids: &[usize], flips: &[bool], device: &Device) -> Tensor<4> {
         let [c, h, w] = self.shape;
         let mut data = Vec::with_capacity(ids.len() * c * h * w);
         for (&i, &f) in ids.iter().zip(flips) {

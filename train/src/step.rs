@@ -25,12 +25,17 @@ pub struct Batch {
 
 /// Stacks images (flipped left-right where `flips` says so) into a batch.
 pub fn make_batch(images: &[&LabeledImage], flips: &[bool], size: u32, device: &Device) -> Batch {
+    Batch { inputs: batch_inputs(images, flips, device), start: 0, boxes: batch_boxes(images, flips, size) }
+}
+
+/// The images' edge maps as a `[B, 1, S, S]` tensor, mirrored where flipped.
+pub fn batch_inputs(images: &[&LabeledImage], flips: &[bool], device: &Device) -> Tensor<4> {
     let edges: Vec<_> = images
         .iter()
         .zip(flips)
         .map(|(im, &flip)| if flip { flip_horizontal(&im.edges) } else { im.edges.clone() })
         .collect();
-    Batch { inputs: input_tensor(&edges, device), start: 0, boxes: batch_boxes(images, flips, size) }
+    input_tensor(&edges, device)
 }
 
 /// The images' boxes in input pixels, mirrored where flipped.

@@ -31,7 +31,7 @@ use serde::{Deserialize, Serialize};
 use crate::config::{OptimizerKind, TrainConfig};
 use crate::feature_cache::{FeatureCache, MAX_CACHE_BYTES};
 use crate::losses::{FASTER_RCNN_PARTS, GRID_PARTS};
-use crate::step::{Batch, batch_boxes, batch_losses, make_batch};
+use crate::step::batch_losses;
 use infer::checkpoint::{self, CheckpointMeta};
 use infer::config::Backbone;
 use infer::labeled::{LabeledImage, load_coco_set};
@@ -173,6 +173,7 @@ pub fn train_until(
     let mut network = Network::new(det, &device);
     let mut optim = optimizer(&config);
     let (mut epochs_done, mut elapsed, mut csv) = (0, 0.0, csv_header(det.backbone));
+    let mut pretrained_report = None;
     if let Some(s) = state {
         network = checkpoint::load_weights(&resume_dir, det, &device).context("loading the resume weights")?;
         optim = optim.load(resume_dir.join(format!("{OPTIMIZER_STEM}.bpk"))).context("loading the optimizer state")?;
@@ -192,12 +193,14 @@ pub fn train_until(
                 eprintln!("  not loaded: {s}");
             }
         }
-        std::fs::create_dir_all(run).with_context(|| format!("{}: cannot create the run folder", run.display()))?;
-        datasets::atomic::write_json(&run.join(PRETRAINED_FILE), &report)?;
+        pretrained_report = Some(report);
     }
     // Written once the settings proved usable (data read, weights loaded).
     std::fs::create_dir_all(run).with_context(|| format!("{}: cannot create the run folder", run.display()))?;
     datasets::atomic::write_json(&run.join(CONFIG_FILE), &config)?;
+    if let Some(report) = &pretrained_report {
+        datasets::atomic::write_json(&run.join(PRETRAINED_FILE), report)?;
+    }
     network = network.freeze_convs(config.freeze);
     let started_caching = Instant::now();
     let caches = frozen_feature_caches(&config, &network, &train_set, &valid_set, &inner, show_progress);
@@ -234,14 +237,8 @@ pub fn train_until(
             let iteration = epoch * per_epoch + k;
             let images: Vec<&LabeledImage> = chunk.iter().map(|&i| train_set[i]).collect();
             let flips: Vec<bool> = images.iter().map(|_| config.augment && crate::targets::coin(&mut rng)).collect();
-            let batch = match &caches {
-                Some((cache, _)) => Batch {
-                    inputs: cache.batch(chunk, &flips, &device),
-                    start: cache.start,
-                    boxes: batch_boxes(&images, &flips, size),
-                },
-                None => make_batch(&images, &flips, size, &device),
-            };
+            let batch =
+                FeatureCache::batch_of(caches.as_ref().map(|(t, _)| t), &train_set, chunk, &flips, size, &device);
             let losses = batch_losses(&network, det, &batch, &mut rng);
             let values: Vec<f64> = std::iter::once(&losses.total)
                 .chain(losses.parts.iter().map(|(_, t)| t))
@@ -351,17 +348,10 @@ fn validation_loss(
     let mut sums = [0.0f64; 5];
     let mut batches = 0;
     let ids: Vec<usize> = (0..valid.len()).collect();
-    for (chunk, ids) in valid.chunks(config.batch_size).zip(ids.chunks(config.batch_size)) {
-        let flips = vec![false; chunk.len()];
+    for ids in ids.chunks(config.batch_size) {
+        let flips = vec![false; ids.len()];
         let size = config.detector.preprocess.size;
-        let batch = match cache {
-            Some(cache) => Batch {
-                inputs: cache.batch(ids, &flips, device),
-                start: cache.start,
-                boxes: batch_boxes(chunk, &flips, size),
-            },
-            None => make_batch(chunk, &flips, size, device),
-        };
+        let batch = FeatureCache::batch_of(cache, valid, ids, &flips, size, device);
         let losses = batch_losses(&model, &config.detector, &batch, &mut rng);
         for (s, t) in sums.iter_mut().zip(std::iter::once(&losses.total).chain(losses.parts.iter().map(|(_, t)| t))) {
             *s += infer::host(t.clone())[0] as f64;
