@@ -45,6 +45,23 @@ impl std::fmt::Display for Backbone {
     }
 }
 
+/// How the grid networks turn trunk features into cells.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum GridHead {
+    /// A 3x3 and a 1x1 convolution on the stride-16 features, one output
+    /// pixel per cell: the same weights judge every cell, so 200 images are
+    /// enough to learn what a corner looks like wherever it is.
+    #[default]
+    Conv,
+    /// torchvision's classifier with its last layer replaced: two hidden
+    /// fully connected layers on the 7x7 (6x6) pooled features, then one
+    /// layer with all cells' outputs. Every cell has its own weights; on
+    /// 200 images it memorises the training set and stays at the prior on
+    /// new images.
+    Fc,
+}
+
 /// Default channel multiplier: a quarter of torchvision's widths trains at a
 /// few images per second on two CPU cores.
 pub const DEFAULT_WIDTH: f32 = 0.25;
@@ -69,6 +86,9 @@ pub struct DetectorConfig {
     pub roi: RoiConfig,
     /// Cells per side of the grid head (VGG16, AlexNet).
     pub grid_cells: usize,
+    /// The grid networks' head; configs written before it existed had `fc`.
+    #[serde(default = "fc_head")]
+    pub grid_head: GridHead,
     pub detection: DetectionConfig,
 }
 
@@ -182,6 +202,7 @@ impl DetectorConfig {
             rpn: RpnConfig::default(),
             roi: RoiConfig::default(),
             grid_cells: 14,
+            grid_head: GridHead::default(),
             detection: DetectionConfig::default(),
         }
     }
@@ -219,6 +240,10 @@ impl DetectorConfig {
         }
         Ok(())
     }
+}
+
+fn fc_head() -> GridHead {
+    GridHead::Fc
 }
 
 pub fn default_hidden(width: f32) -> usize {

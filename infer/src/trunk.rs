@@ -41,9 +41,10 @@ pub fn vgg16_convs(config: &DetectorConfig, device: &Device) -> Vec<Conv2d> {
             let out = config.channels(c);
             let conv = Conv2dConfig::new([input, out], [3, 3])
                 .with_padding(PaddingConfig2d::Explicit(1, 1, 1, 1))
+                .with_initializer(he_fan_out())
                 .init(device);
             input = out;
-            conv
+            zero_bias(conv)
         })
         .collect()
 }
@@ -110,7 +111,7 @@ pub fn alexnet_pool() -> MaxPool2d {
 }
 
 pub fn alexnet_forward(convs: &[Conv2d], pool: &MaxPool2d, act: &Relu, x: Tensor<4>) -> Tensor<4> {
-    alexnet_forward_range(convs, pool, act, x, 0..convs.len())
+    alexnet_forward_range(convs, pool, act, x, 0..convs.len(), true)
 }
 
 pub fn alexnet_forward_range(
@@ -119,10 +120,11 @@ pub fn alexnet_forward_range(
     act: &Relu,
     mut x: Tensor<4>,
     layers: Range<usize>,
+    last_pool: bool,
 ) -> Tensor<4> {
     for i in layers {
         x = act.forward(convs[i].forward(x));
-        if matches!(i, 0 | 1 | 4) {
+        if matches!(i, 0 | 1) || (i == 4 && last_pool) {
             x = pool.forward(x);
         }
     }

@@ -9,6 +9,7 @@
 use std::path::{Path, PathBuf};
 
 use burn::prelude::*;
+use infer::config::GridHead;
 use infer::network::Network;
 use infer::pretrained::{InputConvention, PretrainedError, load_trunk};
 use infer::{Backbone, DetectorConfig};
@@ -26,6 +27,8 @@ fn reference() -> serde_json::Value {
 fn config(backbone: Backbone) -> DetectorConfig {
     let mut c = DetectorConfig::new(backbone, 0.0625);
     c.hidden = 64;
+    // torchvision's classifier, whose hidden layers the fixtures hold.
+    c.grid_head = GridHead::Fc;
     c
 }
 
@@ -72,6 +75,24 @@ fn vgg16_from_pytorch_file_matches_torchvision() {
 #[test]
 fn alexnet_from_safetensors_matches_torchvision() {
     check(Backbone::Alexnet, "alexnet_w16.safetensors", "alexnet");
+}
+
+#[test]
+fn the_conv_grid_head_takes_the_convolutions_and_the_stride_16_features() {
+    let device = Device::flex();
+    let mut config = config(Backbone::Vgg16);
+    config.grid_head = GridHead::Conv;
+    let mut network = Network::new(&config, &device);
+    let report = load_trunk(&mut network, &config, &fixture("vgg16_w16.pth"), InputConvention::Raw, false).unwrap();
+    assert_eq!(report.loaded.len(), 13, "{report:?}");
+    assert!(report.unused.iter().any(|k| k.starts_with("classifier.0")), "{:?}", report.unused);
+    let Network::Grid(net) = network.valid() else { unreachable!() };
+    let features = net.trunk(input(&device));
+    assert_eq!(features.dims(), [1, 32, 14, 14]);
+    // torchvision's trunk is these features after the last 2x2 max pooling
+    // (its 7x7 average pooling of a 7x7 map changes nothing).
+    let pooled = infer::trunk::max_pool_2x2().forward(features);
+    assert_close("vgg16 conv-head trunk, pooled", &infer::host(pooled), &reference()["vgg16"]["trunk"]);
 }
 
 #[test]

@@ -64,7 +64,8 @@ impl TrainConfig {
     pub fn new(backbone: Backbone, width: f32, data: PathBuf) -> Self {
         let (epochs, lr) = match backbone {
             Backbone::FasterRcnn => (24, 1e-3),
-            Backbone::Vgg16 | Backbone::Alexnet => (40, 5e-4),
+            Backbone::Vgg16 => (24, 1e-3),
+            Backbone::Alexnet => (40, 2e-3),
         };
         Self {
             detector: DetectorConfig::new(backbone, width),

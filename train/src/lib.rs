@@ -5,6 +5,7 @@ pub mod compare;
 pub mod config;
 pub mod feature_cache;
 pub mod losses;
+pub mod pretrain;
 pub mod step;
 pub mod targets;
 pub mod trainer;

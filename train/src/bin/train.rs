@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use anyhow::{Result, bail};
 use clap::Parser;
 use infer::backend::CpuBackend;
-use infer::config::{Backbone, DEFAULT_WIDTH};
+use infer::config::{Backbone, DEFAULT_WIDTH, GridHead};
 use infer::pretrained::InputConvention;
 use train::{OptimizerKind, TrainConfig};
 
@@ -24,14 +24,14 @@ struct Args {
     /// Continue the run in this folder from its last completed epoch.
     #[arg(long, conflicts_with_all = ["backbone", "data", "out"])]
     resume: Option<PathBuf>,
-    /// Epochs (default: 24 for faster-rcnn, 40 for the grid networks).
+    /// Epochs (default: 24 for faster-rcnn and vgg16, 40 for alexnet).
     #[arg(long)]
     epochs: Option<usize>,
     #[arg(long, default_value_t = 8)]
     batch_size: usize,
     #[arg(long, value_enum, default_value_t = OptimizerKind::Adam)]
     optimizer: OptimizerKind,
-    /// Peak learning rate (default: 1e-3 for faster-rcnn, 5e-4 for the grid networks).
+    /// Peak learning rate (default: 1e-3 for faster-rcnn and vgg16, 2e-3 for alexnet).
     #[arg(long)]
     lr: Option<f64>,
     #[arg(long, default_value_t = 42)]
@@ -47,6 +47,10 @@ struct Args {
     /// Width of the fully connected layers (default: 4096 x width^2, at least 64).
     #[arg(long)]
     hidden: Option<usize>,
+    /// Head of vgg16 and alexnet: convolutional (one output per cell), or
+    /// torchvision's fully connected classifier with its last layer replaced.
+    #[arg(long, value_enum, default_value_t)]
+    grid_head: GridHead,
     /// Start the trunk from these weights: torchvision-named `.pth`/`.pt` or
     /// `.safetensors` (VGG16, AlexNet, HED), or a trunk written by `pretrain`.
     #[arg(long)]
@@ -96,6 +100,7 @@ fn main() -> Result<()> {
             if let Some(h) = args.hidden {
                 c.detector.hidden = h;
             }
+            c.detector.grid_head = args.grid_head;
             if let Some(p) = &args.pretrained
                 && !p.is_file()
             {

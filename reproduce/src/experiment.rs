@@ -1,0 +1,293 @@
+//! The stages of the experiment, in order: data, trunks, fine-tuning,
+//! comparison, localization. Each stage is skipped when it already finished
+//! with the same inputs (see `stage`); the training runs also resume from
+//! their last epoch when interrupted.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use infer::config::Backbone;
+use infer::metrics::EvalMetrics;
+use localize::corner_source::CornerSource;
+use localize::run::{RunMetrics, TrajectoryMetrics, metrics, run_sequence, write_outputs};
+use localize::sequence::RecordedSequence;
+use serde::{Deserialize, Serialize};
+use train::TrainConfig;
+use train::compare::{RunRecord, csv_table, markdown_table, read_run, write_loss_plots};
+
+use crate::plan::{FineTune, Plan, TrunkSource, trunk_family};
+use crate::stage::{file_fingerprint, run_stage};
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct DataOutputs {
+    pub detection_images: usize,
+    pub detection_labels: usize,
+    pub frames: usize,
+    pub route_length_m: f64,
+    pub seconds: f64,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct TrunkOutputs {
+    pub family: Backbone,
+    pub path: PathBuf,
+    pub fingerprint: String,
+    /// `shipped` or `pretrained here`.
+    pub origin: String,
+    /// AP@0.5 of the pretraining network on its corpus's test split.
+    pub corpus_ap50: Option<f64>,
+    pub seconds: f64,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct TrainOutputs {
+    pub backbone: Backbone,
+    pub run: PathBuf,
+    pub metrics: EvalMetrics,
+    pub final_train_loss: f64,
+    pub final_valid_loss: Option<f64>,
+    pub seconds: f64,
+}
+
+/// One row of Table 2.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ErrorRow {
+    pub level: String,
+    pub matched: usize,
+    pub rmse_x: f64,
+    pub rmse_y: f64,
+    pub rmse_z: f64,
+    pub ate_rmse: f64,
+}
+
+fn error_rows(t: &TrajectoryMetrics) -> Vec<ErrorRow> {
+    let row = |level: &str, e: &localize::eval::ErrorSummary| ErrorRow {
+        level: level.to_string(),
+        matched: e.matched,
+        rmse_x: e.rmse_x,
+        rmse_y: e.rmse_y,
+        rmse_z: e.rmse_z,
+        ate_rmse: e.ate_rmse,
+    };
+    t.levels.iter().map(|l| row(&l.name, &l.errors)).chain([row("all", &t.overall)]).collect()
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct LocalizeOutputs {
+    pub backbone: Backbone,
+    pub dir: PathBuf,
+    pub fused: Vec<ErrorRow>,
+    pub odometry_imu: Vec<ErrorRow>,
+    pub frames: usize,
+    pub fused_frames: usize,
+    pub mean_total_ms: f64,
+    pub seconds: f64,
+}
+
+/// Everything the report needs.
+#[derive(Debug, Clone)]
+pub struct Results {
+    pub data: DataOutputs,
+    pub trunks: Vec<TrunkOutputs>,
+    pub runs: Vec<TrainOutputs>,
+    pub records: Vec<RunRecord>,
+    pub localization: Vec<LocalizeOutputs>,
+    /// Stages skipped because they had finished before.
+    pub reused: Vec<String>,
+}
+
+/// Announces a stage on the terminal.
+fn announce(step: usize, total: usize, what: &str) {
+    eprintln!("[{step}/{total}] {what}");
+}
+
+pub fn run(out: &Path, plan: &Plan, show_progress: bool) -> Result<Results> {
+    if out.exists() && !out.is_dir() {
+        bail!("--out {}: exists and is not a folder", out.display());
+    }
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let families = {
+        let mut f: Vec<Backbone> = plan.runs.iter().map(|r| trunk_family(r.backbone)).collect();
+        f.dedup();
+        f
+    };
+    let total = 1 + families.len() + plan.runs.len() * 2 + 1;
+    let mut step = 0;
+    let mut reused = Vec::new();
+    let mut note = |reused_now: bool, what: String| {
+        if reused_now {
+            eprintln!("    done before, skipped");
+            reused.push(what);
+        }
+    };
+
+    step += 1;
+    announce(step, total, "data: the labeled images and the three-level sequence");
+    let data_dir = out.join("data");
+    let (data, was) = run_stage(&data_dir, &plan.datagen, || {
+        let started = Instant::now();
+        let s = datasets::generate::generate(&data_dir, &plan.datagen)?;
+        Ok(DataOutputs {
+            detection_images: s.detection_images,
+            detection_labels: s.detection_labels,
+            frames: s.frames,
+            route_length_m: s.route_length_m,
+            seconds: started.elapsed().as_secs_f64(),
+        })
+    })?;
+    note(was, "data".into());
+
+    let mut trunks = Vec::new();
+    for &family in &families {
+        step += 1;
+        announce(step, total, &format!("trunk: {family}"));
+        let (trunk, was) = trunk_stage(out, plan, family, show_progress)?;
+        note(was && trunk.origin != "shipped", format!("trunk {family}"));
+        trunks.push(trunk);
+    }
+
+    let mut runs = Vec::new();
+    for ft in &plan.runs {
+        step += 1;
+        announce(step, total, &format!("fine-tune {} for {} epochs", ft.backbone, ft.epochs));
+        let trunk = trunks.iter().find(|t| t.family == trunk_family(ft.backbone)).expect("every family has a trunk");
+        let (outputs, was) = fine_tune(out, plan, ft, &data_dir, trunk, show_progress)?;
+        note(was, format!("training {}", ft.backbone));
+        runs.push(outputs);
+    }
+    let records = runs.iter().map(|r| read_run(&r.run)).collect::<Result<Vec<_>>>()?;
+    let compare_dir = out.join("compare");
+    std::fs::create_dir_all(&compare_dir)?;
+    write_loss_plots(&records, &compare_dir.join("losses"))?;
+    datasets::atomic::write_bytes(&compare_dir.join("table.md"), markdown_table(&records).as_bytes())?;
+    datasets::atomic::write_bytes(&compare_dir.join("table.csv"), csv_table(&records).as_bytes())?;
+
+    let mut localization = Vec::new();
+    for r in &runs {
+        step += 1;
+        announce(step, total, &format!("localize the sequence with {}", r.backbone));
+        let (outputs, was) = localize_stage(out, plan, r, &data_dir, show_progress)?;
+        note(was, format!("localization {}", r.backbone));
+        localization.push(outputs);
+    }
+    step += 1;
+    announce(step, total, "report");
+    Ok(Results { data, trunks, runs, records, localization, reused })
+}
+
+fn trunk_stage(out: &Path, plan: &Plan, family: Backbone, show_progress: bool) -> Result<(TrunkOutputs, bool)> {
+    match &plan.trunks {
+        TrunkSource::Shipped(checkpoints) => {
+            let path = checkpoints.join("pretrained").join(family.name()).join(train::pretrain::TRUNK_FILE);
+            if !path.is_file() {
+                bail!(
+                    "{}: the shipped {family} trunk is missing; run from the repository's root, or pass --pretrain \
+                     to pretrain it on a generated corpus",
+                    path.display()
+                );
+            }
+            let meta_path = path.with_file_name(train::pretrain::META_FILE);
+            let corpus_ap50 = datasets::atomic::read_text(&meta_path)
+                .ok()
+                .and_then(|t| serde_json::from_str::<train::pretrain::TrunkMeta>(&t).ok())
+                .map(|m| m.corpus_test.ap50);
+            let trunk = TrunkOutputs {
+                family,
+                fingerprint: file_fingerprint(&path)?,
+                path,
+                origin: "shipped".into(),
+                corpus_ap50,
+                seconds: 0.0,
+            };
+            Ok((trunk, true))
+        }
+        TrunkSource::Pretrain { .. } => {
+            let config = plan.pretrain_config(family).expect("pretraining planned");
+            let dir = out.join("pretrain").join(family.name());
+            run_stage(&dir, &config, || {
+                let started = Instant::now();
+                let (path, meta) = train::pretrain::pretrain(&dir, &config, show_progress)?;
+                Ok(TrunkOutputs {
+                    family,
+                    fingerprint: file_fingerprint(&path)?,
+                    path,
+                    origin: "pretrained here".into(),
+                    corpus_ap50: Some(meta.corpus_test.ap50),
+                    seconds: started.elapsed().as_secs_f64(),
+                })
+            })
+        }
+    }
+}
+
+fn fine_tune(
+    out: &Path,
+    plan: &Plan,
+    ft: &FineTune,
+    data_dir: &Path,
+    trunk: &TrunkOutputs,
+    show_progress: bool,
+) -> Result<(TrainOutputs, bool)> {
+    let run = out.join("runs").join(ft.backbone.name());
+    let mut config = TrainConfig::new(ft.backbone, plan.width, data_dir.join("detection"));
+    config.epochs = ft.epochs;
+    config.backend = plan.backend;
+    config.pretrained = Some(trunk.path.clone());
+    let inputs = serde_json::json!({ "train": &config, "trunk": &trunk.fingerprint, "data": &plan.datagen });
+    run_stage(&run, &inputs, || {
+        // An interrupted run with the same settings continues; any other
+        // run in the folder is from other settings and starts over.
+        let previous = datasets::atomic::read_text(&run.join(train::trainer::CONFIG_FILE))
+            .ok()
+            .and_then(|t| serde_json::from_str::<TrainConfig>(&t).ok());
+        let summary = if previous.as_ref() == Some(&config) {
+            train::train(None, &run, show_progress)?
+        } else {
+            if run.exists() {
+                eprintln!("    {} holds a run with other settings: starting it over", run.display());
+                std::fs::remove_dir_all(&run).with_context(|| format!("clearing {}", run.display()))?;
+            }
+            train::train(Some(config.clone()), &run, show_progress)?
+        };
+        Ok(TrainOutputs {
+            backbone: ft.backbone,
+            run: run.clone(),
+            metrics: summary.metrics,
+            final_train_loss: summary.final_train_loss,
+            final_valid_loss: summary.final_valid_loss,
+            seconds: summary.seconds,
+        })
+    })
+}
+
+fn localize_stage(
+    out: &Path,
+    plan: &Plan,
+    trained: &TrainOutputs,
+    data_dir: &Path,
+    show_progress: bool,
+) -> Result<(LocalizeOutputs, bool)> {
+    let dir = out.join("localize").join(trained.backbone.name());
+    let checkpoint = trained.run.join(train::trainer::CHECKPOINT_DIR);
+    let weights = file_fingerprint(&checkpoint.join(infer::checkpoint::WEIGHTS_FILE))?;
+    let inputs = serde_json::json!({ "detector": weights, "data": &plan.datagen, "config": &plan.localize });
+    run_stage(&dir, &inputs, || {
+        let started = Instant::now();
+        let sequence = RecordedSequence::open(&data_dir.join("sequence"))?;
+        let mut source = CornerSource::detector(&checkpoint, plan.backend.device(), plan.localize.fusion.min_score)?;
+        let result = run_sequence(&sequence, &mut source, &plan.localize, show_progress)?;
+        let m: RunMetrics = metrics(&sequence, &result)?.context("the generated sequence has no ground truth")?;
+        write_outputs(&dir, &plan.localize, &result, sequence.ground_truth.as_ref(), Some(&m))?;
+        Ok(LocalizeOutputs {
+            backbone: trained.backbone,
+            dir: dir.clone(),
+            fused: error_rows(&m.fused),
+            odometry_imu: error_rows(&m.odometry_imu),
+            frames: m.frames,
+            fused_frames: m.fused_frames,
+            mean_total_ms: m.mean_total_ms,
+            seconds: started.elapsed().as_secs_f64(),
+        })
+    })
+}

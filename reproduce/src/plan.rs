@@ -1,0 +1,110 @@
+//! What the experiment runs: the data, the trunks to transfer from, the
+//! three fine-tuning runs and the localization settings. `Plan::full` is
+//! the paper's experiment on the default data; `Plan::quick` a smoke version
+//! of every stage that takes a few minutes.
+
+use std::path::PathBuf;
+
+use datasets::corpus::CorpusConfig;
+use datasets::generate::DatagenConfig;
+use infer::backend::CpuBackend;
+use infer::config::{Backbone, DEFAULT_WIDTH};
+use localize::config::LocalizeConfig;
+use serde::{Deserialize, Serialize};
+use train::pretrain::PretrainConfig;
+
+/// The paper's three networks, the proposed one first (the reference of
+/// the loss reductions).
+pub const BACKBONES: [Backbone; 3] = [Backbone::FasterRcnn, Backbone::Vgg16, Backbone::Alexnet];
+
+/// Which trunk a backbone transfers from: faster-rcnn and vgg16 share the
+/// VGG16 trunk, alexnet has its own.
+pub fn trunk_family(backbone: Backbone) -> Backbone {
+    match backbone {
+        Backbone::FasterRcnn | Backbone::Vgg16 => Backbone::Vgg16,
+        Backbone::Alexnet => Backbone::Alexnet,
+    }
+}
+
+/// Where the trunks come from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub enum TrunkSource {
+    /// The trunks shipped in `DIR/pretrained/<family>/`, made by `pretrain`
+    /// with the default corpus (their `meta.json` says how).
+    Shipped(PathBuf),
+    /// Pretrain each trunk family here, on a generated corpus.
+    Pretrain { corpus: CorpusConfig, epochs: usize },
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FineTune {
+    pub backbone: Backbone,
+    pub epochs: usize,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Plan {
+    pub quick: bool,
+    pub datagen: DatagenConfig,
+    pub width: f32,
+    pub trunks: TrunkSource,
+    pub runs: Vec<FineTune>,
+    pub backend: CpuBackend,
+    pub localize: LocalizeConfig,
+}
+
+impl Plan {
+    /// The experiment on the default data: the shipped trunks fine-tuned on
+    /// the 200 training images, epochs chosen so that the whole run fits 45
+    /// minutes on two cores.
+    pub fn full(checkpoints: PathBuf) -> Self {
+        Self {
+            quick: false,
+            datagen: DatagenConfig::default(),
+            width: DEFAULT_WIDTH,
+            trunks: TrunkSource::Shipped(checkpoints),
+            runs: vec![
+                FineTune { backbone: Backbone::FasterRcnn, epochs: 16 },
+                FineTune { backbone: Backbone::Vgg16, epochs: 16 },
+                FineTune { backbone: Backbone::Alexnet, epochs: 40 },
+            ],
+            backend: CpuBackend::default(),
+            localize: LocalizeConfig::default(),
+        }
+    }
+
+    /// Every stage on little data at a small width: pretraining on a
+    /// two-world corpus, two epochs of fine-tuning, a sequence at ten times
+    /// the paper's speed (one pass over the route in 57 frames).
+    pub fn quick() -> Self {
+        let mut datagen = DatagenConfig::default();
+        datagen.detection.images = 24;
+        datagen.detection.train = 16;
+        datagen.sequence.speed_mps = 0.5;
+        Self {
+            quick: true,
+            datagen,
+            width: 0.125,
+            trunks: TrunkSource::Pretrain {
+                corpus: CorpusConfig { worlds: 2, images_per_world: 8, test_every: 4, ..CorpusConfig::default() },
+                epochs: 1,
+            },
+            runs: BACKBONES.iter().map(|&backbone| FineTune { backbone, epochs: 2 }).collect(),
+            backend: CpuBackend::default(),
+            localize: LocalizeConfig::default(),
+        }
+    }
+
+    /// Settings of the pretraining of one trunk family.
+    pub fn pretrain_config(&self, family: Backbone) -> Option<PretrainConfig> {
+        match &self.trunks {
+            TrunkSource::Shipped(_) => None,
+            TrunkSource::Pretrain { corpus, epochs } => {
+                let mut c = PretrainConfig::new(family, self.width);
+                c.corpus = corpus.clone();
+                c.epochs = *epochs;
+                Some(c)
+            }
+        }
+    }
+}
