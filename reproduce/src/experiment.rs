@@ -123,19 +123,8 @@ pub fn run(out: &Path, plan: &Plan, show_progress: bool) -> Result<Results> {
     };
 
     step += 1;
-    announce(step, total, "data: the labeled images and the three-level sequence");
-    let data_dir = out.join("data");
-    let (data, was) = run_stage(&data_dir, &plan.datagen, || {
-        let started = Instant::now();
-        let s = datasets::generate::generate(&data_dir, &plan.datagen)?;
-        Ok(DataOutputs {
-            detection_images: s.detection_images,
-            detection_labels: s.detection_labels,
-            frames: s.frames,
-            route_length_m: s.route_length_m,
-            seconds: started.elapsed().as_secs_f64(),
-        })
-    })?;
+    announce(step, total, "data: the labeled images and the sequence");
+    let (data_dir, data_key, data, was) = data_stage(out, plan)?;
     note(was, "data".into());
 
     let mut trunks = Vec::new();
@@ -152,7 +141,7 @@ pub fn run(out: &Path, plan: &Plan, show_progress: bool) -> Result<Results> {
         step += 1;
         announce(step, total, &format!("fine-tune {} for {} epochs", ft.backbone, ft.epochs));
         let trunk = trunks.iter().find(|t| t.family == trunk_family(ft.backbone)).expect("every family has a trunk");
-        let (outputs, was) = fine_tune(out, plan, ft, &data_dir, trunk, show_progress)?;
+        let (outputs, was) = fine_tune(out, plan, ft, (&data_dir, &data_key), trunk, show_progress)?;
         note(was, format!("training {}", ft.backbone));
         runs.push(outputs);
     }
@@ -167,13 +156,60 @@ pub fn run(out: &Path, plan: &Plan, show_progress: bool) -> Result<Results> {
     for r in &runs {
         step += 1;
         announce(step, total, &format!("localize the sequence with {}", r.backbone));
-        let (outputs, was) = localize_stage(out, plan, r, &data_dir, show_progress)?;
+        let (outputs, was) = localize_stage(out, plan, r, (&data_dir, &data_key), show_progress)?;
         note(was, format!("localization {}", r.backbone));
         localization.push(outputs);
     }
     step += 1;
     announce(step, total, "report");
     Ok(Results { data, trunks, runs, records, localization, reused })
+}
+
+/// The data folder, what identifies its content for the later stages, and
+/// its figures. Generated data is made here; recorded data is only read.
+fn data_stage(out: &Path, plan: &Plan) -> Result<(PathBuf, serde_json::Value, DataOutputs, bool)> {
+    if let Some(dir) = &plan.recorded {
+        let train_json = dir.join("detection/train.json");
+        let test_json = dir.join("detection/test.json");
+        let train = datasets::formats::read_coco(&train_json)?;
+        let test = datasets::formats::read_coco(&test_json)?;
+        let sequence = RecordedSequence::open(&dir.join("sequence"))?;
+        let route_length_m = sequence
+            .ground_truth
+            .as_ref()
+            .map(|t| {
+                let p: Vec<_> = t.positions().collect();
+                p.windows(2).map(|w| (w[1] - w[0]).norm()).sum()
+            })
+            .unwrap_or(f64::NAN);
+        let data = DataOutputs {
+            detection_images: train.images.len() + test.images.len(),
+            detection_labels: train.annotations.len() + test.annotations.len(),
+            frames: sequence.frames.len(),
+            route_length_m,
+            seconds: 0.0,
+        };
+        let key = serde_json::json!({
+            "recorded": dir,
+            "train": file_fingerprint(&train_json)?,
+            "test": file_fingerprint(&test_json)?,
+            "frames": data.frames,
+        });
+        return Ok((dir.clone(), key, data, true));
+    }
+    let dir = out.join("data");
+    let (data, was) = run_stage(&dir, &plan.datagen, || {
+        let started = Instant::now();
+        let s = datasets::generate::generate(&dir, &plan.datagen)?;
+        Ok(DataOutputs {
+            detection_images: s.detection_images,
+            detection_labels: s.detection_labels,
+            frames: s.frames,
+            route_length_m: s.route_length_m,
+            seconds: started.elapsed().as_secs_f64(),
+        })
+    })?;
+    Ok((dir, serde_json::to_value(&plan.datagen)?, data, was))
 }
 
 fn trunk_stage(out: &Path, plan: &Plan, family: Backbone, show_progress: bool) -> Result<(TrunkOutputs, bool)> {
@@ -225,7 +261,7 @@ fn fine_tune(
     out: &Path,
     plan: &Plan,
     ft: &FineTune,
-    data_dir: &Path,
+    (data_dir, data_key): (&Path, &serde_json::Value),
     trunk: &TrunkOutputs,
     show_progress: bool,
 ) -> Result<(TrainOutputs, bool)> {
@@ -234,7 +270,7 @@ fn fine_tune(
     config.epochs = ft.epochs;
     config.backend = plan.backend;
     config.pretrained = Some(trunk.path.clone());
-    let inputs = serde_json::json!({ "train": &config, "trunk": &trunk.fingerprint, "data": &plan.datagen });
+    let inputs = serde_json::json!({ "train": &config, "trunk": &trunk.fingerprint, "data": data_key });
     run_stage(&run, &inputs, || {
         // An interrupted run with the same settings continues; any other
         // run in the folder is from other settings and starts over.
@@ -265,28 +301,35 @@ fn localize_stage(
     out: &Path,
     plan: &Plan,
     trained: &TrainOutputs,
-    data_dir: &Path,
+    (data_dir, data_key): (&Path, &serde_json::Value),
     show_progress: bool,
 ) -> Result<(LocalizeOutputs, bool)> {
     let dir = out.join("localize").join(trained.backbone.name());
     let checkpoint = trained.run.join(train::trainer::CHECKPOINT_DIR);
     let weights = file_fingerprint(&checkpoint.join(infer::checkpoint::WEIGHTS_FILE))?;
-    let inputs = serde_json::json!({ "detector": weights, "data": &plan.datagen, "config": &plan.localize });
+    let inputs = serde_json::json!({ "detector": weights, "data": data_key, "config": &plan.localize });
     run_stage(&dir, &inputs, || {
         let started = Instant::now();
         let sequence = RecordedSequence::open(&data_dir.join("sequence"))?;
         let mut source = CornerSource::detector(&checkpoint, plan.backend.device(), plan.localize.fusion.min_score)?;
         let result = run_sequence(&sequence, &mut source, &plan.localize, show_progress)?;
-        let m: RunMetrics = metrics(&sequence, &result)?.context("the generated sequence has no ground truth")?;
-        write_outputs(&dir, &plan.localize, &result, sequence.ground_truth.as_ref(), Some(&m))?;
+        // Without ground truth (a recorded sequence may have none) there are
+        // trajectories but no errors.
+        let m: Option<RunMetrics> = metrics(&sequence, &result)?;
+        write_outputs(&dir, &plan.localize, &result, sequence.ground_truth.as_ref(), m.as_ref())?;
+        let n = result.frames.len();
         Ok(LocalizeOutputs {
             backbone: trained.backbone,
             dir: dir.clone(),
-            fused: error_rows(&m.fused),
-            odometry_imu: error_rows(&m.odometry_imu),
-            frames: m.frames,
-            fused_frames: m.fused_frames,
-            mean_total_ms: m.mean_total_ms,
+            fused: m.as_ref().map(|m| error_rows(&m.fused)).unwrap_or_default(),
+            odometry_imu: m.as_ref().map(|m| error_rows(&m.odometry_imu)).unwrap_or_default(),
+            frames: n,
+            fused_frames: result
+                .frames
+                .iter()
+                .filter(|f| matches!(f.status, localize::pipeline::FrameStatus::Fused { .. }))
+                .count(),
+            mean_total_ms: result.frames.iter().map(|f| f.total_ms).sum::<f64>() / n.max(1) as f64,
             seconds: started.elapsed().as_secs_f64(),
         })
     })

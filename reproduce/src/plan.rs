@@ -45,7 +45,13 @@ pub struct FineTune {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Plan {
     pub quick: bool,
+    /// How the data is generated, unless `recorded` is given.
     pub datagen: DatagenConfig,
+    /// A user's own data instead of the generated: `DIR/detection` (COCO
+    /// `train.json`, `test.json` and their images) and `DIR/sequence` (the
+    /// recorded-sequence layout of the design).
+    #[serde(default)]
+    pub recorded: Option<PathBuf>,
     pub width: f32,
     pub trunks: TrunkSource,
     pub runs: Vec<FineTune>,
@@ -61,6 +67,7 @@ impl Plan {
         Self {
             quick: false,
             datagen: DatagenConfig::default(),
+            recorded: None,
             width: DEFAULT_WIDTH,
             trunks: TrunkSource::Shipped(checkpoints),
             runs: vec![
@@ -84,6 +91,7 @@ impl Plan {
         Self {
             quick: true,
             datagen,
+            recorded: None,
             width: 0.125,
             trunks: TrunkSource::Pretrain {
                 corpus: CorpusConfig { worlds: 2, images_per_world: 8, test_every: 4, ..CorpusConfig::default() },

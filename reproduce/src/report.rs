@@ -104,18 +104,32 @@ pub fn markdown(plan: &Plan, results: &Results, machine: &Machine, invocation_s:
         let _ = writeln!(s, "**Smoke run: tiny data and two epochs; its numbers say only that every stage works.**\n");
     }
     let d = &results.data;
-    let _ = writeln!(
-        s,
-        "Data: {} labeled images ({} corner labels; {} for training) and a {}-frame sequence over a {:.1} m \
-         route through three levels joined by ramps, at {} m/s and {} Hz (`data/`).\n",
-        d.detection_images,
-        d.detection_labels,
-        plan.datagen.detection.train,
-        d.frames,
-        d.route_length_m,
-        plan.datagen.sequence.speed_mps,
-        plan.datagen.sequence.rate_hz
-    );
+    match &plan.recorded {
+        Some(dir) => {
+            let _ = writeln!(
+                s,
+                "Data: recorded, from `{}`: {} labeled images ({} corner labels) and a {}-frame sequence.\n",
+                dir.display(),
+                d.detection_images,
+                d.detection_labels,
+                d.frames
+            );
+        }
+        None => {
+            let _ = writeln!(
+                s,
+                "Data: {} labeled images ({} corner labels; {} for training) and a {}-frame sequence over a {:.1} m \
+                 route through three levels joined by ramps, at {} m/s and {} Hz (`data/`).\n",
+                d.detection_images,
+                d.detection_labels,
+                plan.datagen.detection.train,
+                d.frames,
+                d.route_length_m,
+                plan.datagen.sequence.speed_mps,
+                plan.datagen.sequence.rate_hz
+            );
+        }
+    }
     let _ = writeln!(s, "Trunks transferred from:\n");
     for t in &results.trunks {
         let source = match &plan.trunks {
@@ -140,7 +154,11 @@ pub fn markdown(plan: &Plan, results: &Results, machine: &Machine, invocation_s:
     if let Some(first) = results.localization.first() {
         rows.push(("odometry/IMU alone".into(), first.odometry_imu.as_slice()));
     }
-    error_table(&mut s, &rows);
+    if rows.iter().all(|(_, r)| r.is_empty()) {
+        let _ = writeln!(s, "The sequence has no `groundtruth.txt`: trajectories only, no errors.");
+    } else {
+        error_table(&mut s, &rows);
+    }
     let _ = writeln!(s);
     for l in &results.localization {
         let _ = writeln!(

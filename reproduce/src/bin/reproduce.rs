@@ -23,6 +23,11 @@ struct Args {
     /// from the shipped ones (adds about two hours on two cores).
     #[arg(long)]
     pretrain: bool,
+    /// Your own data instead of the generated: `DIR/detection` (COCO
+    /// train.json, test.json, images) and `DIR/sequence` (clouds, images,
+    /// odometry, IMU, calibration, optional groundtruth.txt).
+    #[arg(long)]
+    data: Option<PathBuf>,
     /// The folder holding the shipped trunks (`pretrained/<network>/`).
     #[arg(long, default_value = "checkpoints")]
     checkpoints: PathBuf,
@@ -37,6 +42,12 @@ fn main() -> Result<()> {
         plan.trunks = TrunkSource::Pretrain { corpus: CorpusConfig::default(), epochs: 3 };
     }
     plan.backend = args.backend;
+    if let Some(dir) = &args.data {
+        if !dir.join("detection/train.json").is_file() || !dir.join("sequence").is_dir() {
+            anyhow::bail!("--data {}: needs detection/train.json, detection/test.json and sequence/", dir.display());
+        }
+        plan.recorded = Some(dir.clone());
+    }
     let show_progress = !std::env::var("CI").is_ok_and(|v| v == "true");
     reproduce::reproduce(&args.out, &plan, show_progress)?;
     println!("wrote {}", args.out.join(reproduce::REPORT_FILE).display());
