@@ -55,7 +55,10 @@ pub struct TrunkMeta {
     pub corpus_test: infer::metrics::EvalMetrics,
     pub final_train_loss: f64,
     pub train_seconds: f64,
+    /// Rendering time; near zero when an existing corpus was reused.
     pub corpus_seconds: f64,
+    #[serde(default)]
+    pub corpus_reused: bool,
 }
 
 /// Generates (or reuses) the corpus, trains (or continues training) on it
@@ -105,6 +108,7 @@ pub fn pretrain(out: &Path, config: &PretrainConfig, show_progress: bool) -> Res
         final_train_loss: summary.final_train_loss,
         train_seconds: summary.seconds,
         corpus_seconds,
+        corpus_reused: corpus.reused,
     };
     let header = HashMap::from([
         ("format".to_string(), "torchvision-named trunk".to_string()),
