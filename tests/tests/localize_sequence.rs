@@ -42,14 +42,20 @@ fn fused_localization_beats_odometry_and_imu_on_a_generated_route() {
 }
 
 #[test]
-fn the_shipped_detector_runs_inside_localization() {
-    let checkpoint = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../checkpoints/faster-rcnn");
+fn the_shipped_detectors_run_inside_localization() {
     let dir = tempfile::tempdir().unwrap();
     let sequence = short_sequence(dir.path(), 4);
-    let mut detector = CornerSource::detector(&checkpoint, infer::backend::CpuBackend::Flex.device(), 0.3).unwrap();
-    let result = run_sequence(&sequence, &mut detector, &LocalizeConfig::default(), false).unwrap();
-    assert_eq!(result.trajectory.len(), 4);
-    assert!(result.frames.iter().map(|f| f.detections).sum::<usize>() > 0, "the detector found no corner in 4 frames");
+    // Each backbone's shipped checkpoint is of that backbone and finds corners.
+    for backbone in ["faster-rcnn", "vgg16", "alexnet"] {
+        let checkpoint = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../checkpoints").join(backbone);
+        let config = infer::checkpoint::read_config(&checkpoint).unwrap();
+        assert_eq!(config.backbone.name(), backbone);
+        let mut detector = CornerSource::detector(&checkpoint, infer::backend::CpuBackend::Flex.device(), 0.3).unwrap();
+        let result = run_sequence(&sequence, &mut detector, &LocalizeConfig::default(), false).unwrap();
+        assert_eq!(result.trajectory.len(), 4);
+        let found = result.frames.iter().map(|f| f.detections).sum::<usize>();
+        assert!(found > 0, "{backbone}: no corner in 4 frames");
+    }
     // A detector of another kind of file is refused with the path named.
     let error = CornerSource::detector(dir.path(), infer::backend::CpuBackend::Flex.device(), 0.3).err().unwrap();
     assert!(error.to_string().contains(&dir.path().display().to_string()), "{error}");

@@ -57,7 +57,17 @@ impl RunRecord {
     pub fn start(&self) -> String {
         let from = match &self.config.pretrained {
             Some(p) => {
-                p.file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_else(|| p.display().to_string())
+                let name = p.file_name().map(|f| f.to_string_lossy().into_owned());
+                match name {
+                    // Every `pretrain` output has the same file name; its
+                    // folder says which trunk it is.
+                    Some(n) if n == crate::pretrain::TRUNK_FILE => {
+                        let folder = p.parent().and_then(|d| d.file_name()).map(|d| d.to_string_lossy());
+                        format!("pretrained {}", folder.as_deref().unwrap_or("trunk"))
+                    }
+                    Some(n) => n,
+                    None => p.display().to_string(),
+                }
             }
             None => "scratch".into(),
         };
@@ -242,6 +252,12 @@ pub fn write_loss_plots(runs: &[RunRecord], stem: &Path) -> Result<()> {
     Ok(())
 }
 
+/// A log-axis tick without float noise: 0.7, not 0.7000000000000001.
+fn tick_label(v: f64) -> String {
+    let s = format!("{v:.3}");
+    s.trim_end_matches('0').trim_end_matches('.').to_string()
+}
+
 /// Left: training loss against iterations (every iteration faint, epoch
 /// means solid). Right: training (solid) and validation (dashed) loss
 /// against epochs. Log scale, as the runs' losses differ by their kind.
@@ -267,7 +283,15 @@ where
         .y_label_area_size(60)
         .build_cartesian_2d(0f64..max_iter as f64, (lo..hi).log_scale())
         .map_err(e)?;
-    chart.configure_mesh().x_desc("iteration").y_desc("loss").draw().map_err(e)?;
+    chart
+        .configure_mesh()
+        .x_desc("iteration")
+        .y_desc("loss")
+        .x_label_formatter(&|v| format!("{v:.0}"))
+        .y_label_formatter(&|v| tick_label(*v))
+        .max_light_lines(2)
+        .draw()
+        .map_err(e)?;
     for (r, colour) in runs.iter().zip(PALETTE.iter().cycle()) {
         let faint = colour.mix(0.25);
         chart
@@ -299,7 +323,15 @@ where
         .y_label_area_size(60)
         .build_cartesian_2d(0.5f64..max_epoch as f64 + 0.5, (lo..hi).log_scale())
         .map_err(e)?;
-    chart.configure_mesh().x_desc("epoch").y_desc("loss").draw().map_err(e)?;
+    chart
+        .configure_mesh()
+        .x_desc("epoch")
+        .y_desc("loss")
+        .x_label_formatter(&|v| format!("{v:.0}"))
+        .y_label_formatter(&|v| tick_label(*v))
+        .max_light_lines(2)
+        .draw()
+        .map_err(e)?;
     for (r, colour) in runs.iter().zip(PALETTE.iter().cycle()) {
         chart
             .draw_series(LineSeries::new(

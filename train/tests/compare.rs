@@ -69,6 +69,14 @@ fn runs_are_tabulated_ranked_and_drawn() {
     assert_eq!(alex[7], "75.00");
     assert_eq!((cells(rows[1])[9].as_str(), vgg[9].as_str(), alex[9].as_str()), ("2", "1", "-"));
     assert!(table.contains("different functions"));
+    // The start says where the trunk came from: a `pretrain` trunk by its folder.
+    assert_eq!(vgg[3], "scratch");
+    let mut pretrained = runs[1].clone();
+    pretrained.config.pretrained = Some("checkpoints/pretrained/vgg16/trunk.safetensors".into());
+    assert_eq!(pretrained.start(), "pretrained vgg16");
+    pretrained.config.pretrained = Some("w/hed_vgg16_bsds500.safetensors".into());
+    pretrained.config.pretrained_prune = true;
+    assert_eq!(pretrained.start(), "hed_vgg16_bsds500.safetensors, pruned");
     assert_eq!(csv_table(&runs).lines().count(), 4);
     write_loss_plots(&runs, &dir.path().join("losses")).unwrap();
     let png = image::open(dir.path().join("losses.png")).unwrap();

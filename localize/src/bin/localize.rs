@@ -321,9 +321,19 @@ fn bench(args: &BenchArgs) -> Result<()> {
     };
     let mut rows = Vec::new();
     let plain = LocalizeConfig::default();
-    let mut thinned = LocalizeConfig::default();
-    thinned.voxel.size_m = 0.05;
-    for (name, lidar, config) in [("m8", &m8, &plain), ("dense", &dense, &plain), ("dense-5cm", &dense, &thinned)] {
+    let thinned = |size_m: f64| {
+        let mut c = LocalizeConfig::default();
+        c.voxel.size_m = size_m;
+        c
+    };
+    let (thin5, thin10) = (thinned(0.05), thinned(0.10));
+    let scans = [
+        ("m8", &m8, &plain),
+        ("dense", &dense, &plain),
+        ("dense-5cm", &dense, &thin5),
+        ("dense-10cm", &dense, &thin10),
+    ];
+    for (name, lidar, config) in scans {
         let (points, [normals, planes, corners]) = bench_geometry(&world, lidar, config, args.frames)?;
         let geometry = normals + planes + corners;
         rows.push(serde_json::json!({
@@ -353,7 +363,9 @@ fn bench(args: &BenchArgs) -> Result<()> {
             f("total_ms")
         );
     }
-    println!("(points: as scanned; dense-5cm thins them to 5 cm voxels before the normals, inside the normals time)");
+    println!(
+        "(points: as scanned; dense-5cm and dense-10cm thin them to 5 and 10 cm voxels before the normals, inside the normals time)"
+    );
     println!("(fusion and pose take well under 1 ms a frame; see frames.csv of a run)");
     Ok(())
 }

@@ -20,7 +20,7 @@ struct Args {
     #[arg(long)]
     quick: bool,
     /// Pretrain the trunks here on a generated corpus instead of starting
-    /// from the shipped ones (adds about two hours on two cores).
+    /// from the shipped ones (adds about an hour on two cores).
     #[arg(long)]
     pretrain: bool,
     /// Your own data instead of the generated: `DIR/detection` (COCO
