@@ -10,6 +10,7 @@ use datasets::plot::{canvas, plot_error, register_font, write_png};
 use infer::checkpoint::{self, CheckpointMeta};
 use infer::metrics::EvalMetrics;
 use plotters::coord::Shift;
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 
 use crate::config::TrainConfig;
@@ -258,6 +259,33 @@ fn tick_label(v: f64) -> String {
     s.trim_end_matches('0').trim_end_matches('.').to_string()
 }
 
+type LossChart<'a, DB> = ChartContext<'a, DB, Cartesian2d<RangedCoordf64, LogCoord<f64>>>;
+
+/// A chart with a linear x axis and a log loss axis, its mesh drawn.
+fn loss_chart<'a, DB: DrawingBackend>(
+    area: &'a DrawingArea<DB, Shift>,
+    caption: &str,
+    x_desc: &str,
+    x: std::ops::Range<f64>,
+    y: std::ops::Range<f64>,
+) -> Result<LossChart<'a, DB>, DrawingAreaErrorKind<DB::ErrorType>> {
+    let mut chart = ChartBuilder::on(area)
+        .caption(caption, ("sans-serif", 22))
+        .margin(14)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(x, y.log_scale())?;
+    chart
+        .configure_mesh()
+        .x_desc(x_desc)
+        .y_desc("loss")
+        .x_label_formatter(&|v| format!("{v:.0}"))
+        .y_label_formatter(&|v| tick_label(*v))
+        .max_light_lines(2)
+        .draw()?;
+    Ok(chart)
+}
+
 /// Left: training loss against iterations (every iteration faint, epoch
 /// means solid). Right: training (solid) and validation (dashed) loss
 /// against epochs. Log scale, as the runs' losses differ by their kind.
@@ -276,22 +304,8 @@ where
     let max_epoch = runs.iter().map(|r| r.train_epochs.len()).max().unwrap_or(1).max(1);
     let (left, right) = root.split_horizontally(PLOT_SIZE.0 / 2);
 
-    let mut chart = ChartBuilder::on(&left)
-        .caption("training loss by iteration", ("sans-serif", 22))
-        .margin(14)
-        .x_label_area_size(40)
-        .y_label_area_size(60)
-        .build_cartesian_2d(0f64..max_iter as f64, (lo..hi).log_scale())
-        .map_err(e)?;
-    chart
-        .configure_mesh()
-        .x_desc("iteration")
-        .y_desc("loss")
-        .x_label_formatter(&|v| format!("{v:.0}"))
-        .y_label_formatter(&|v| tick_label(*v))
-        .max_light_lines(2)
-        .draw()
-        .map_err(e)?;
+    let mut chart =
+        loss_chart(&left, "training loss by iteration", "iteration", 0f64..max_iter as f64, lo..hi).map_err(e)?;
     for (r, colour) in runs.iter().zip(PALETTE.iter().cycle()) {
         let faint = colour.mix(0.25);
         chart
@@ -316,22 +330,8 @@ where
         .draw()
         .map_err(e)?;
 
-    let mut chart = ChartBuilder::on(&right)
-        .caption("training (solid) and validation (dashed) loss by epoch", ("sans-serif", 22))
-        .margin(14)
-        .x_label_area_size(40)
-        .y_label_area_size(60)
-        .build_cartesian_2d(0.5f64..max_epoch as f64 + 0.5, (lo..hi).log_scale())
-        .map_err(e)?;
-    chart
-        .configure_mesh()
-        .x_desc("epoch")
-        .y_desc("loss")
-        .x_label_formatter(&|v| format!("{v:.0}"))
-        .y_label_formatter(&|v| tick_label(*v))
-        .max_light_lines(2)
-        .draw()
-        .map_err(e)?;
+    let caption = "training (solid) and validation (dashed) loss by epoch";
+    let mut chart = loss_chart(&right, caption, "epoch", 0.5f64..max_epoch as f64 + 0.5, lo..hi).map_err(e)?;
     for (r, colour) in runs.iter().zip(PALETTE.iter().cycle()) {
         chart
             .draw_series(LineSeries::new(
