@@ -10,8 +10,14 @@ use datasets::formats::*;
 use datasets::math::Pose3;
 use nalgebra::{Point3, Translation3, UnitQuaternion, Vector3};
 
+/// The package folder, read when the test runs (cargo sets it), so that a
+/// test binary reused from another checkout still finds its files.
+fn manifest_dir() -> std::path::PathBuf {
+    std::env::var_os("CARGO_MANIFEST_DIR").map_or_else(|| env!("CARGO_MANIFEST_DIR").into(), Into::into)
+}
+
 fn real(rel: &str) -> PathBuf {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data").join(rel);
+    let path = manifest_dir().join("../../shared/data").join(rel);
     assert!(
         path.exists(),
         "real-data file {} is missing: these tests need the shared data folder beside the project",

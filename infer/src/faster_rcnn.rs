@@ -7,6 +7,8 @@ use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::nn::pool::MaxPool2d;
 use burn::nn::{Initializer, Linear, LinearConfig, PaddingConfig2d, Relu};
 use burn::prelude::*;
+
+use crate::conv_op::conv2d;
 use burn::tensor::activation::softmax;
 
 use crate::anchors::AnchorConfig;
@@ -109,12 +111,12 @@ impl FasterRcnn {
     pub fn rpn(&self, features: Tensor<4>) -> RpnOutput {
         let [b, _, h, w] = features.dims();
         let a = self.anchors_per_location;
-        let t = self.act.forward(self.rpn_conv.forward(features));
+        let t = self.act.forward(conv2d(&self.rpn_conv, features));
         // [B, A, H, W] -> [B, H, W, A] -> [B, H*W*A]
-        let objectness = self.rpn_cls.forward(t.clone()).permute([0, 2, 3, 1]).reshape([b, h * w * a]);
+        let objectness = conv2d(&self.rpn_cls, t.clone()).permute([0, 2, 3, 1]).reshape([b, h * w * a]);
         // [B, A*4, H, W] -> [B, A, 4, H, W] -> [B, H, W, A, 4] -> [B, H*W*A, 4]
         let deltas =
-            self.rpn_bbox.forward(t).reshape([b, a, 4, h, w]).permute([0, 3, 4, 1, 2]).reshape([b, h * w * a, 4]);
+            conv2d(&self.rpn_bbox, t).reshape([b, a, 4, h, w]).permute([0, 3, 4, 1, 2]).reshape([b, h * w * a, 4]);
         RpnOutput { objectness, deltas, grid_h: h, grid_w: w }
     }
 

@@ -14,6 +14,8 @@ use burn::nn::pool::{AdaptiveAvgPool2d, AdaptiveAvgPool2dConfig, MaxPool2d};
 use burn::nn::{Dropout, DropoutConfig, Initializer, Linear, LinearConfig, Relu};
 use burn::prelude::*;
 
+use crate::conv_op::conv2d;
+
 use crate::config::{Backbone, DetectorConfig, GridHead};
 use crate::trunk;
 
@@ -143,8 +145,8 @@ impl GridNet {
                 out.reshape([b, self.cells, self.cells, CELL_VALUES])
             }
             GridHead::Conv => {
-                let x = self.act.forward(self.head_convs[0].forward(features));
-                self.head_convs[1].forward(x).permute([0, 2, 3, 1])
+                let x = self.act.forward(conv2d(&self.head_convs[0], features));
+                conv2d(&self.head_convs[1], x).permute([0, 2, 3, 1])
             }
         };
         GridOutput { cells }

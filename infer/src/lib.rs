@@ -7,6 +7,8 @@ pub mod backend;
 pub mod boxes;
 pub mod checkpoint;
 pub mod config;
+pub mod conv_kernels;
+pub mod conv_op;
 pub mod detector;
 pub mod eval;
 pub mod faster_rcnn;

@@ -9,6 +9,8 @@ use burn::nn::pool::{MaxPool2d, MaxPool2dConfig};
 use burn::nn::{Initializer, PaddingConfig2d, Relu};
 use burn::prelude::*;
 
+use crate::conv_op::conv2d;
+
 /// torchvision's VGG initialisation: He normal over the fan-out, zero bias.
 /// (PyTorch's default init leaves a 13-layer VGG without batch norm nearly
 /// untrainable from scratch.)
@@ -68,7 +70,7 @@ pub fn vgg16_forward_range(
     last_pool: bool,
 ) -> Tensor<4> {
     for i in layers {
-        x = act.forward(convs[i].forward(x));
+        x = act.forward(conv2d(&convs[i], x));
         if VGG16_POOL_AFTER.contains(&i) && (last_pool || i != 12) {
             x = pool.forward(x);
         }
@@ -123,7 +125,7 @@ pub fn alexnet_forward_range(
     last_pool: bool,
 ) -> Tensor<4> {
     for i in layers {
-        x = act.forward(convs[i].forward(x));
+        x = act.forward(conv2d(&convs[i], x));
         if matches!(i, 0 | 1) || (i == 4 && last_pool) {
             x = pool.forward(x);
         }

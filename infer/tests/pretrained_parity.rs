@@ -6,7 +6,7 @@
 //! Tolerance: 1e-4 relative to the largest output magnitude (f32 sums in a
 //! different order through 13 layers).
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use burn::prelude::*;
 use infer::config::GridHead;
@@ -14,10 +14,16 @@ use infer::network::Network;
 use infer::pretrained::{InputConvention, PretrainedError, load_trunk};
 use infer::{Backbone, DetectorConfig};
 
+/// The package folder, read when the test runs (cargo sets it), so that a
+/// test binary reused from another checkout still finds its files.
+fn manifest_dir() -> std::path::PathBuf {
+    std::env::var_os("CARGO_MANIFEST_DIR").map_or_else(|| env!("CARGO_MANIFEST_DIR").into(), Into::into)
+}
+
 const SIZE: usize = 224;
 
 fn fixture(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures").join(name)
+    manifest_dir().join("tests/fixtures").join(name)
 }
 
 fn reference() -> serde_json::Value {

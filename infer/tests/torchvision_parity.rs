@@ -10,10 +10,14 @@ use infer::boxes::{BBox, BoxCoder, batched_nms, box_iou, nms, remove_small};
 use infer::roi_align::roi_align;
 use serde_json::Value;
 
+/// The package folder, read when the test runs (cargo sets it), so that a
+/// test binary reused from another checkout still finds its files.
+fn manifest_dir() -> std::path::PathBuf {
+    std::env::var_os("CARGO_MANIFEST_DIR").map_or_else(|| env!("CARGO_MANIFEST_DIR").into(), Into::into)
+}
+
 fn fixture() -> Value {
-    let text =
-        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/torchvision_reference.json"))
-            .unwrap();
+    let text = std::fs::read_to_string(manifest_dir().join("tests/fixtures/torchvision_reference.json")).unwrap();
     serde_json::from_str(&text).unwrap()
 }
 

@@ -2,12 +2,18 @@
 
 use std::process::Command;
 
+/// The package folder, read when the test runs (cargo sets it), so that a
+/// test binary reused from another checkout still finds its files.
+fn manifest_dir() -> std::path::PathBuf {
+    std::env::var_os("CARGO_MANIFEST_DIR").map_or_else(|| env!("CARGO_MANIFEST_DIR").into(), Into::into)
+}
+
 fn localize(args: &[&str]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_localize")).args(args).output().expect("runs")
 }
 
 fn shared(path: &str) -> String {
-    format!("{}/../../shared/data/{path}", env!("CARGO_MANIFEST_DIR"))
+    format!("{}/../../shared/data/{path}", manifest_dir().display())
 }
 
 #[test]

@@ -7,6 +7,12 @@ use nalgebra::Point3;
 use rand::rngs::ChaCha8Rng;
 use rand::{RngExt, SeedableRng};
 
+/// The package folder, read when the test runs (cargo sets it), so that a
+/// test binary reused from another checkout still finds its files.
+fn manifest_dir() -> std::path::PathBuf {
+    std::env::var_os("CARGO_MANIFEST_DIR").map_or_else(|| env!("CARGO_MANIFEST_DIR").into(), Into::into)
+}
+
 /// Points on the inside faces of an axis-aligned room [0, 8] x [0, 5] x [0, 3]
 /// with `noise` (uniform, metres) along each face's normal.
 fn room(rng: &mut ChaCha8Rng, per_face: usize, noise: f32) -> Vec<Point3<f32>> {
@@ -134,7 +140,7 @@ fn bad_clouds_are_errors_not_panics() {
 
 #[test]
 fn real_room_scan_has_floor_ceiling_and_walls() {
-    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/pcl_room_scans/room_scan1.pcd");
+    let path = manifest_dir().join("../../shared/data/pcl_room_scans/room_scan1.pcd");
     let cloud = datasets::formats::read_cloud(&path, datasets::formats::NonFinite::Drop)
         .unwrap_or_else(|e| panic!("{e} (the shared data folder is needed for this test)"));
     let stages = GeometryStages::new(&LocalizeConfig::default()).unwrap();

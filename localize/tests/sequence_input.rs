@@ -16,6 +16,12 @@ use localize::run::run_sequence;
 use localize::sequence::RecordedSequence;
 use nalgebra::Point3;
 
+/// The package folder, read when the test runs (cargo sets it), so that a
+/// test binary reused from another checkout still finds its files.
+fn manifest_dir() -> std::path::PathBuf {
+    std::env::var_os("CARGO_MANIFEST_DIR").map_or_else(|| env!("CARGO_MANIFEST_DIR").into(), Into::into)
+}
+
 fn box_room() -> PointCloud {
     // A 6 x 4 x 3 m room around the sensor, a point every 10 cm on each face.
     let mut points = Vec::new();
@@ -110,7 +116,7 @@ fn a_calibration_that_does_not_parse_is_an_error_naming_it() {
 
 #[test]
 fn frames_without_images_fall_back_and_say_why() {
-    let checkpoint = Path::new(env!("CARGO_MANIFEST_DIR")).join("../checkpoints/faster-rcnn");
+    let checkpoint = manifest_dir().join("../checkpoints/faster-rcnn");
     let dir = tempfile::tempdir().unwrap();
     write_sequence(dir.path());
     let sequence = RecordedSequence::open(dir.path()).unwrap();

@@ -1,15 +1,21 @@
 //! Trajectory metrics against hand-computed values and evo 1.38.1's numbers
 //! on real trajectories (`evo_reference_results.txt` in the shared data).
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use datasets::formats::{Trajectory, read_trajectory};
 use datasets::math::{Pose3, Vec3};
 use localize::eval::{Alignment, associate, compare, umeyama};
 use nalgebra::{Translation3, UnitQuaternion};
 
+/// The package folder, read when the test runs (cargo sets it), so that a
+/// test binary reused from another checkout still finds its files.
+fn manifest_dir() -> std::path::PathBuf {
+    std::env::var_os("CARGO_MANIFEST_DIR").map_or_else(|| env!("CARGO_MANIFEST_DIR").into(), Into::into)
+}
+
 fn evo(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/evo_trajectories").join(name)
+    manifest_dir().join("../../shared/data/evo_trajectories").join(name)
 }
 
 fn load(name: &str) -> Trajectory {

@@ -7,6 +7,12 @@ use localize::corner_source::CornerSource;
 use localize::run::{metrics, run_sequence, write_outputs};
 use localize::sequence::RecordedSequence;
 
+/// The package folder, read when the test runs (cargo sets it), so that a
+/// test binary reused from another checkout still finds its files.
+fn manifest_dir() -> std::path::PathBuf {
+    std::env::var_os("CARGO_MANIFEST_DIR").map_or_else(|| env!("CARGO_MANIFEST_DIR").into(), Into::into)
+}
+
 fn short_sequence(dir: &std::path::Path, frames: usize) -> RecordedSequence {
     let mut config = DatagenConfig::default();
     config.detection.images = 2;
@@ -47,7 +53,7 @@ fn the_shipped_detectors_run_inside_localization() {
     let sequence = short_sequence(dir.path(), 4);
     // Each backbone's shipped checkpoint is of that backbone and finds corners.
     for backbone in ["faster-rcnn", "vgg16", "alexnet"] {
-        let checkpoint = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../checkpoints").join(backbone);
+        let checkpoint = manifest_dir().join("../checkpoints").join(backbone);
         let config = infer::checkpoint::read_config(&checkpoint).unwrap();
         assert_eq!(config.backbone.name(), backbone);
         let mut detector = CornerSource::detector(&checkpoint, infer::backend::CpuBackend::Flex.device(), 0.3).unwrap();

@@ -4,6 +4,7 @@
 pub mod compare;
 pub mod config;
 pub mod feature_cache;
+pub mod fused_adamw;
 pub mod losses;
 pub mod pretrain;
 pub mod step;

@@ -20,7 +20,9 @@ use anyhow::{Context, Result, bail};
 use burn::grad_clipping::GradientClippingConfig;
 use burn::optim::decay::WeightDecayConfig;
 use burn::optim::momentum::MomentumConfig;
-use burn::optim::{AdamWConfig, GradientsParams, ModuleOptimizer, SgdConfig};
+use burn::optim::{GradientsParams, ModuleOptimizer, SgdConfig};
+
+use crate::fused_adamw::FusedAdamW;
 use burn::prelude::*;
 use indicatif::{ProgressBar, ProgressStyle};
 use rand::SeedableRng;
@@ -73,9 +75,7 @@ fn mix(a: u64, b: u64) -> u64 {
 fn optimizer(config: &TrainConfig) -> ModuleOptimizer {
     let clip = Some(GradientClippingConfig::Norm(10.0));
     match config.optimizer {
-        OptimizerKind::Adam => {
-            AdamWConfig::new().with_weight_decay(config.weight_decay as f32).with_grad_clipping(clip).init()
-        }
+        OptimizerKind::Adam => FusedAdamW::new(config.weight_decay as f32).init(clip),
         OptimizerKind::Sgd => SgdConfig::new()
             .with_momentum(Some(MomentumConfig::new().with_momentum(0.9).with_dampening(0.0)))
             .with_weight_decay(Some(WeightDecayConfig::new(config.weight_decay as f32)))

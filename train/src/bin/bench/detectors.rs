@@ -1,50 +1,18 @@
 //! `bench detectors`: training images per second, inference milliseconds per
 //! image and peak memory of each backbone on the chosen CPU backend. Each
 //! backbone runs in its own process so that its peak memory is its own.
-//!
-//!     cargo run --release --bin bench -- detectors [--backend flex|ndarray] [--width 0.25]
 
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use burn::prelude::*;
-use clap::{Parser, Subcommand};
 use image::GrayImage;
 use infer::backend::CpuBackend;
-use infer::config::{Backbone, DEFAULT_WIDTH, DetectorConfig};
+use infer::config::{Backbone, DetectorConfig};
 use infer::network::Network;
 use rand::SeedableRng;
 use rand::rngs::ChaCha8Rng;
 use train::step::{Batch, batch_losses};
-
-#[derive(Debug, Parser)]
-#[command(name = "bench")]
-struct Cli {
-    #[command(subcommand)]
-    command: Command,
-}
-
-#[derive(Debug, Subcommand)]
-enum Command {
-    /// Time a training step and inference of each detector.
-    Detectors {
-        #[arg(long, value_enum, default_value_t)]
-        backend: CpuBackend,
-        #[arg(long, default_value_t = DEFAULT_WIDTH)]
-        width: f32,
-        #[arg(long, default_value_t = 8)]
-        batch: usize,
-        /// Timed training steps (after one warm-up step).
-        #[arg(long, default_value_t = 3)]
-        steps: usize,
-        /// Run one backbone in this process (used by the parent run).
-        #[arg(long, value_enum)]
-        only: Option<Backbone>,
-        /// Print JSON lines instead of a table.
-        #[arg(long)]
-        json: bool,
-    },
-}
 
 #[derive(serde::Serialize, serde::Deserialize)]
 struct Figures {
@@ -58,8 +26,14 @@ struct Figures {
     parameters: usize,
 }
 
-fn main() -> Result<()> {
-    let Command::Detectors { backend, width, batch, steps, only, json } = Cli::parse().command;
+pub fn run(
+    backend: CpuBackend,
+    width: f32,
+    batch: usize,
+    steps: usize,
+    only: Option<Backbone>,
+    json: bool,
+) -> Result<()> {
     if let Some(backbone) = only {
         let f = measure(backbone, backend, width, batch, steps)?;
         println!("{}", serde_json::to_string(&f)?);
@@ -156,7 +130,7 @@ fn measure(backbone: Backbone, backend: CpuBackend, width: f32, batch: usize, st
 }
 
 /// The process's peak resident memory (Linux `VmHWM`), in MB.
-fn peak_rss_mb() -> f64 {
+pub fn peak_rss_mb() -> f64 {
     let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
     status
         .lines()

@@ -1,0 +1,232 @@
+//! The project's 2-D convolution: Burn's `Conv2d` parameters, with the
+//! forward pass and the gradients computed by `conv_kernels` on the flex
+//! backend (with and without autodiff). Every other device, and bias-free or
+//! non-f32 convolutions, take Burn's own path, so the model code stays
+//! generic and a GPU device runs the standard kernels.
+//!
+//! Plugged in without forking Burn: a backend extension trait implemented
+//! for `Flex`, and for `Autodiff<Flex>` with a hand-written backward step.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use burn::backend::autodiff::checkpoint::base::Checkpointer;
+use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
+use burn::backend::autodiff::grads::Gradients;
+use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
+use burn::backend::autodiff::{Autodiff, NodeId};
+use burn::backend::ops::{ConvOptions, FloatTensorOps, ModuleOps};
+use burn::backend::tensor::FloatTensor;
+use burn::backend::{Backend, Dispatch, Flex, TensorMetadata, backend_extension};
+use burn::nn::PaddingConfig2d;
+use burn::nn::conv::Conv2d;
+use burn::prelude::*;
+use burn::tensor::DType;
+
+use crate::conv_kernels::{self, ConvGeometry};
+
+static ENABLED: AtomicBool = AtomicBool::new(true);
+
+/// Turns the GEMM kernels on or off for the whole process (on by default);
+/// off, every convolution runs Burn's own kernels. For benchmarks and tests
+/// that compare the two.
+pub fn set_gemm_kernels(enabled: bool) {
+    ENABLED.store(enabled, Ordering::Relaxed);
+}
+
+pub fn gemm_kernels_enabled() -> bool {
+    ENABLED.load(Ordering::Relaxed)
+}
+
+/// `conv.forward(x)`: through the GEMM kernels unless they are turned off.
+pub fn conv2d(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
+    if gemm_kernels_enabled() { gemm_conv2d(conv, x) } else { conv.forward(x) }
+}
+
+/// `conv.forward(x)` through the GEMM kernels where they apply (a flex
+/// device, f32, a bias, explicit padding), Burn's own path elsewhere.
+pub fn gemm_conv2d(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
+    let Some(bias) = conv.bias.as_ref() else { return conv.forward(x) };
+    if !is_flex(&x.device()) || x.dtype() != DType::F32 {
+        return conv.forward(x);
+    }
+    // `Same` padding depends on the input size; it keeps Burn's path.
+    let (top, left, bottom, right) = match conv.padding {
+        PaddingConfig2d::Valid => (0, 0, 0, 0),
+        PaddingConfig2d::Explicit(top, left, bottom, right) => (top, left, bottom, right),
+        PaddingConfig2d::Same => return conv.forward(x),
+    };
+    let options =
+        ConvOptions::new_with_padding(conv.stride, [(top, bottom), (left, right)], conv.dilation, conv.groups);
+    Tensor::from_dispatch(<Dispatch as GemmConvBackend>::conv2d_gemm(
+        x.into_dispatch(),
+        conv.weight.val().into_dispatch(),
+        bias.val().into_dispatch(),
+        options,
+    ))
+}
+
+fn is_flex(device: &Device) -> bool {
+    device.clone().without_autodiff() == Device::flex()
+}
+
+#[backend_extension(Flex, Autodiff)]
+pub trait GemmConvBackend: Backend {
+    /// A biased 2-D convolution (Burn's layouts and options).
+    fn conv2d_gemm(
+        x: FloatTensor<Self>,
+        weight: FloatTensor<Self>,
+        bias: FloatTensor<Self>,
+        options: ConvOptions<2>,
+    ) -> FloatTensor<Self>;
+}
+
+fn dims4(t: &FloatTensor<Flex>) -> [usize; 4] {
+    let shape = t.shape();
+    [shape[0], shape[1], shape[2], shape[3]]
+}
+
+fn geometry(x: &FloatTensor<Flex>, weight: &FloatTensor<Flex>, options: &ConvOptions<2>) -> Option<ConvGeometry> {
+    if x.dtype() != DType::F32 || weight.dtype() != DType::F32 {
+        return None;
+    }
+    ConvGeometry::new(dims4(x), dims4(weight), options.stride, options.padding, options.dilation, options.groups)
+}
+
+/// Runs `f` on the tensor's values (copied to a contiguous buffer only when
+/// the layout needs it).
+fn with_values<R>(t: &FloatTensor<Flex>, f: impl FnOnce(&[f32]) -> R) -> R {
+    match t.as_slice::<f32>() {
+        Some(values) => f(values),
+        None => f(t.to_contiguous().as_slice::<f32>().expect("a contiguous f32 tensor")),
+    }
+}
+
+fn flex_tensor(values: Vec<f32>, shape: [usize; 4]) -> FloatTensor<Flex> {
+    Flex::float_from_data(TensorData::new(values, shape), &Default::default())
+}
+
+/// The forward pass on flex tensors: the GEMM kernel, or Burn's where the
+/// kernel does not apply.
+pub fn flex_forward(
+    x: FloatTensor<Flex>,
+    weight: FloatTensor<Flex>,
+    bias: FloatTensor<Flex>,
+    options: ConvOptions<2>,
+) -> FloatTensor<Flex> {
+    let Some(geo) = geometry(&x, &weight, &options).filter(|_| bias.dtype() == DType::F32) else {
+        return Flex::conv2d(x, weight, Some(bias), options);
+    };
+    let out = with_values(&x, |x| {
+        with_values(&weight, |w| with_values(&bias, |b| conv_kernels::forward(x, w, Some(b), &geo)))
+    });
+    flex_tensor(out, [geo.batch, geo.out_channels, geo.out_hw[0], geo.out_hw[1]])
+}
+
+/// The gradient with respect to the input.
+pub fn flex_input_grad(
+    x: &FloatTensor<Flex>,
+    weight: &FloatTensor<Flex>,
+    grad: &FloatTensor<Flex>,
+    options: ConvOptions<2>,
+) -> FloatTensor<Flex> {
+    match geometry(x, weight, &options).filter(|_| grad.dtype() == DType::F32) {
+        Some(geo) => {
+            let dx = with_values(weight, |w| with_values(grad, |g| conv_kernels::input_grad(w, g, &geo)));
+            flex_tensor(dx, dims4(x))
+        }
+        None => Flex::conv2d_x_backward(x.clone(), weight.clone(), grad.clone(), options),
+    }
+}
+
+/// The gradient with respect to the weight.
+pub fn flex_weight_grad(
+    x: &FloatTensor<Flex>,
+    weight: &FloatTensor<Flex>,
+    grad: &FloatTensor<Flex>,
+    options: ConvOptions<2>,
+) -> FloatTensor<Flex> {
+    match geometry(x, weight, &options).filter(|_| grad.dtype() == DType::F32) {
+        Some(geo) => {
+            let dw = with_values(x, |x| with_values(grad, |g| conv_kernels::weight_grad(x, g, &geo)));
+            flex_tensor(dw, dims4(weight))
+        }
+        None => Flex::conv2d_weight_backward(x.clone(), weight.clone(), grad.clone(), options),
+    }
+}
+
+/// The gradient with respect to the bias: `grad` summed over all but the
+/// channel axis.
+pub fn flex_bias_grad(grad: &FloatTensor<Flex>) -> FloatTensor<Flex> {
+    let [n, o, h, w] = dims4(grad);
+    if grad.dtype() == DType::F32 {
+        let db = with_values(grad, |g| conv_kernels::bias_grad(g, n, o));
+        return Flex::float_from_data(TensorData::new(db, [o]), &Default::default());
+    }
+    let rows = Flex::float_reshape(Flex::float_swap_dims(grad.clone(), 0, 1), [o, n * h * w].into());
+    Flex::float_reshape(Flex::float_sum_dim(rows, 1), [o].into())
+}
+
+impl GemmConvBackend for Flex {
+    fn conv2d_gemm(
+        x: FloatTensor<Self>,
+        weight: FloatTensor<Self>,
+        bias: FloatTensor<Self>,
+        options: ConvOptions<2>,
+    ) -> FloatTensor<Self> {
+        flex_forward(x, weight, bias, options)
+    }
+}
+
+/// The backward step: input, weight and bias gradients from `conv_kernels`.
+#[derive(Debug)]
+struct Conv2dGemmBackward;
+
+impl Backward<Flex, 3> for Conv2dGemmBackward {
+    type State = (NodeId, NodeId, ConvOptions<2>);
+
+    fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, checkpointer: &mut Checkpointer) {
+        let [node_x, node_weight, node_bias] = ops.parents;
+        let grad = grads.consume::<Flex>(&ops.node);
+        let (x_state, weight_state, options) = ops.state;
+        let x = checkpointer.retrieve_node_output::<FloatTensor<Flex>>(x_state);
+        let weight = checkpointer.retrieve_node_output::<FloatTensor<Flex>>(weight_state);
+        if let Some(node) = node_x {
+            grads.register::<Flex>(node.id, flex_input_grad(&x, &weight, &grad, options.clone()));
+        }
+        if let Some(node) = node_weight {
+            grads.register::<Flex>(node.id, flex_weight_grad(&x, &weight, &grad, options));
+        }
+        if let Some(node) = node_bias {
+            grads.register::<Flex>(node.id, flex_bias_grad(&grad));
+        }
+    }
+}
+
+impl<C: CheckpointStrategy> GemmConvBackend for Autodiff<Flex, C> {
+    fn conv2d_gemm(
+        x: FloatTensor<Self>,
+        weight: FloatTensor<Self>,
+        bias: FloatTensor<Self>,
+        options: ConvOptions<2>,
+    ) -> FloatTensor<Self> {
+        match Conv2dGemmBackward.prepare::<C>([x.node(), weight.node(), bias.node()]).compute_bound().stateful() {
+            OpsKind::Tracked(mut prep) => {
+                let x_state = prep.checkpoint(&x);
+                let weight_state = prep.checkpoint(&weight);
+                let out = Flex::conv2d_gemm(
+                    x.into_primitive(),
+                    weight.into_primitive(),
+                    bias.into_primitive(),
+                    options.clone(),
+                );
+                prep.finish((x_state, weight_state, options), out)
+            }
+            OpsKind::UnTracked(prep) => prep.finish(Flex::conv2d_gemm(
+                x.into_primitive(),
+                weight.into_primitive(),
+                bias.into_primitive(),
+                options,
+            )),
+        }
+    }
+}

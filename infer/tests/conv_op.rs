@@ -1,0 +1,157 @@
+//! The GEMM convolution agrees with Burn's own convolution: forward output
+//! and the input, weight and bias gradients, on many seeded random shapes
+//! (stride, padding per side, dilation, groups, batch 1 and 8, odd sizes).
+
+use burn::module::Param;
+use burn::nn::PaddingConfig2d;
+use burn::nn::conv::{Conv2d, Conv2dConfig};
+use burn::prelude::*;
+use infer::conv_op::gemm_conv2d;
+use rand::rngs::ChaCha8Rng;
+use rand::{RngExt, SeedableRng};
+
+/// Relative tolerance: differences come only from the summation order.
+const TOLERANCE: f32 = 1e-4;
+
+#[derive(Debug, Clone)]
+struct Case {
+    batch: usize,
+    channels: [usize; 2],
+    groups: usize,
+    kernel: [usize; 2],
+    stride: [usize; 2],
+    /// top, left, bottom, right
+    padding: [usize; 4],
+    dilation: [usize; 2],
+    size: [usize; 2],
+}
+
+impl Case {
+    fn random(rng: &mut ChaCha8Rng) -> Self {
+        loop {
+            let groups = [1, 1, 2, 3][rng.random_range(0..4)];
+            let case = Case {
+                batch: if rng.random_bool(0.5) { 1 } else { 8 },
+                channels: [groups * rng.random_range(1..4), groups * rng.random_range(1..4)],
+                groups,
+                kernel: [[1, 2, 3, 5][rng.random_range(0..4)], [1, 3, 4][rng.random_range(0..3)]],
+                stride: [rng.random_range(1..4), rng.random_range(1..3)],
+                padding: [0; 4].map(|_| rng.random_range(0..3)),
+                dilation: [rng.random_range(1..3), rng.random_range(1..3)],
+                size: [rng.random_range(5..18), rng.random_range(5..18)],
+            };
+            // Keep cases with at least one output position per axis.
+            let fits = (0..2).all(|i| {
+                let padded = case.size[i] + case.padding[i] + case.padding[i + 2];
+                padded > case.dilation[i] * (case.kernel[i] - 1)
+            });
+            if fits {
+                return case;
+            }
+        }
+    }
+
+    fn conv(&self, device: &Device) -> Conv2d {
+        let [t, l, b, r] = self.padding;
+        Conv2dConfig::new(self.channels, self.kernel)
+            .with_stride(self.stride)
+            .with_padding(PaddingConfig2d::Explicit(t, l, b, r))
+            .with_dilation(self.dilation)
+            .with_groups(self.groups)
+            .init(device)
+    }
+}
+
+fn values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+    t.into_data().try_into_vec_as::<f32>().unwrap()
+}
+
+fn assert_close(what: &str, case: &Case, ours: Vec<f32>, burn: Vec<f32>) {
+    assert_eq!(ours.len(), burn.len(), "{what} length, {case:?}");
+    let scale = burn.iter().fold(1.0f32, |m, v| m.max(v.abs()));
+    let worst = ours.iter().zip(&burn).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+    assert!(worst <= TOLERANCE * scale, "{what}: largest difference {worst} (scale {scale}), {case:?}");
+}
+
+/// A tensor of uniform values in [-1, 1) from `rng` (the device's own
+/// generator is shared by tests running in parallel, so it is not used).
+fn uniform<const D: usize>(shape: [usize; D], rng: &mut ChaCha8Rng, device: &Device) -> Tensor<D> {
+    let data: Vec<f32> = (0..shape.iter().product()).map(|_| rng.random_range(-1.0..1.0)).collect();
+    Tensor::from_data(TensorData::new(data, shape), device)
+}
+
+/// Output, input gradient, weight gradient, bias gradient of
+/// `sum(conv(x) * r)`.
+fn run(case: &Case, gemm: bool, seed: u64) -> [Vec<f32>; 4] {
+    let device = Device::flex().autodiff();
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut conv = case.conv(&device);
+    conv.weight = Param::from_tensor(uniform(conv.weight.val().dims(), &mut rng, &device));
+    conv.bias = Some(Param::from_tensor(uniform([case.channels[1]], &mut rng, &device)));
+    let x = uniform([case.batch, case.channels[0], case.size[0], case.size[1]], &mut rng, &device).require_grad();
+    let y = if gemm { gemm_conv2d(&conv, x.clone()) } else { conv.forward(x.clone()) };
+    let r = uniform(y.dims(), &mut rng, &device);
+    let grads = (y.clone() * r).sum().backward();
+    [
+        values(y),
+        values(x.grad(&grads).expect("input gradient")),
+        values(conv.weight.grad(&grads).expect("weight gradient")),
+        values(conv.bias.as_ref().unwrap().grad(&grads).expect("bias gradient")),
+    ]
+}
+
+#[test]
+fn forward_and_all_gradients_match_burns_on_random_shapes() {
+    let mut rng = ChaCha8Rng::seed_from_u64(2026);
+    let cases: Vec<Case> = (0..40).map(|_| Case::random(&mut rng)).collect();
+    // The generator covers what it should, so the test cannot pass by
+    // drawing only easy cases.
+    assert!(cases.iter().any(|c| c.groups > 1));
+    assert!(cases.iter().any(|c| c.stride != [1, 1]) && cases.iter().any(|c| c.stride == [1, 1] && c.groups == 1));
+    assert!(cases.iter().any(|c| c.dilation != [1, 1]));
+    assert!(cases.iter().any(|c| c.batch == 1) && cases.iter().any(|c| c.batch == 8));
+    for (i, case) in cases.iter().enumerate() {
+        let seed = 100 + i as u64;
+        let [y, dx, dw, db] = run(case, true, seed);
+        let [y_ref, dx_ref, dw_ref, db_ref] = run(case, false, seed);
+        assert_close("output", case, y, y_ref);
+        assert_close("input gradient", case, dx, dx_ref);
+        assert_close("weight gradient", case, dw, dw_ref);
+        assert_close("bias gradient", case, db, db_ref);
+    }
+}
+
+#[test]
+fn the_reference_layer_matches_at_full_size() {
+    // The benchmark's layer (64->64 3x3, padding 1), batch 2 to stay quick.
+    let case = Case {
+        batch: 2,
+        channels: [64, 64],
+        groups: 1,
+        kernel: [3, 3],
+        stride: [1, 1],
+        padding: [1; 4],
+        dilation: [1, 1],
+        size: [56, 56],
+    };
+    let [y, dx, dw, db] = run(&case, true, 9);
+    let [y_ref, dx_ref, dw_ref, db_ref] = run(&case, false, 9);
+    assert_close("output", &case, y, y_ref);
+    assert_close("input gradient", &case, dx, dx_ref);
+    assert_close("weight gradient", &case, dw, dw_ref);
+    assert_close("bias gradient", &case, db, db_ref);
+}
+
+#[test]
+fn other_devices_and_bias_free_convolutions_take_burns_path() {
+    #[allow(deprecated)]
+    let device = Device::ndarray();
+    let conv = Conv2dConfig::new([2, 3], [3, 3]).init(&device);
+    let x = Tensor::<4>::ones([1, 2, 6, 6], &device);
+    assert_eq!(values(gemm_conv2d(&conv, x.clone())), values(conv.forward(x)));
+
+    let device = Device::flex();
+    let conv = Conv2dConfig::new([2, 3], [3, 3]).with_bias(false).init(&device);
+    let x = Tensor::<4>::ones([1, 2, 6, 6], &device);
+    assert_eq!(values(gemm_conv2d(&conv, x.clone())), values(conv.forward(x)));
+}

@@ -1,0 +1,85 @@
+//! Benchmarks that print figures (never timed tests: machines are shared).
+//!
+//!     cargo run --release --bin bench -- detectors [--backend flex|ndarray] [--width 0.25]
+//!     cargo run --release --bin bench -- conv [--json]
+//!     cargo run --release --bin bench -- train-step [--model alexnet --model vgg16w4 --model vgg16]
+
+mod classifier;
+mod conv;
+mod detectors;
+
+use anyhow::Result;
+use clap::{Parser, Subcommand};
+use infer::backend::CpuBackend;
+use infer::config::{Backbone, DEFAULT_WIDTH};
+
+#[derive(Debug, Parser)]
+#[command(name = "bench")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Time a training step and inference of each detector.
+    Detectors {
+        #[arg(long, value_enum, default_value_t)]
+        backend: CpuBackend,
+        #[arg(long, default_value_t = DEFAULT_WIDTH)]
+        width: f32,
+        #[arg(long, default_value_t = 8)]
+        batch: usize,
+        /// Timed training steps (after one warm-up step).
+        #[arg(long, default_value_t = 3)]
+        steps: usize,
+        /// Run one backbone in this process (used by the parent run).
+        #[arg(long, value_enum)]
+        only: Option<Backbone>,
+        /// Print JSON lines instead of a table.
+        #[arg(long)]
+        json: bool,
+    },
+    /// GFLOP/s of the convolution kernels (forward, input and weight
+    /// gradient): the project's GEMM kernels and Burn's flex kernels.
+    Conv {
+        /// Timed runs per kernel (median reported, after one warm-up).
+        #[arg(long, default_value_t = 5)]
+        reps: usize,
+        /// Print one JSON object for the reference layer (64->64 3x3 on
+        /// 8x64x112x112) instead of the table of all layers.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Training-step images per second of the torchvision classifiers with
+    /// Burn's kernels and with the GEMM kernels.
+    TrainStep {
+        /// Models to time (repeat the flag); all three by default.
+        #[arg(long = "model", value_enum)]
+        models: Vec<classifier::Model>,
+        #[arg(long, default_value_t = 8)]
+        batch: usize,
+        #[arg(long, default_value_t = 2)]
+        warmup: usize,
+        #[arg(long, default_value_t = 5)]
+        steps: usize,
+        /// Print JSON lines instead of a table.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+fn main() -> Result<()> {
+    match Cli::parse().command {
+        Command::Detectors { backend, width, batch, steps, only, json } => {
+            detectors::run(backend, width, batch, steps, only, json)
+        }
+        Command::Conv { reps, json } => conv::run(reps, json),
+        Command::TrainStep { mut models, batch, warmup, steps, json } => {
+            if models.is_empty() {
+                models = vec![classifier::Model::Alexnet, classifier::Model::Vgg16w4, classifier::Model::Vgg16];
+            }
+            classifier::run(&models, batch, warmup.max(1), steps.max(1), json)
+        }
+    }
+}
