@@ -33,7 +33,9 @@ pub fn run(
     steps: usize,
     only: Option<Backbone>,
     json: bool,
+    burn_kernels: bool,
 ) -> Result<()> {
+    infer::conv_op::set_gemm_kernels(!burn_kernels);
     if let Some(backbone) = only {
         let f = measure(backbone, backend, width, batch, steps)?;
         println!("{}", serde_json::to_string(&f)?);
@@ -48,6 +50,7 @@ pub fn run(
         let out = std::process::Command::new(&exe)
             .args(["detectors", "--backend", &format!("{backend:?}").to_lowercase(), "--width", &width.to_string()])
             .args(["--batch", &batch.to_string(), "--steps", &steps.to_string(), "--only", backbone.name()])
+            .args(burn_kernels.then_some("--burn-kernels"))
             .output()
             .context("running a benchmark child")?;
         if !out.status.success() {
@@ -94,7 +97,12 @@ fn measure(backbone: Backbone, backend: CpuBackend, width: f32, batch: usize, st
     let config = DetectorConfig::new(backbone, width);
     let device = backend.device().autodiff();
     let mut network = Network::new(&config, &device);
-    let mut optim = burn::optim::AdamWConfig::new().init();
+    // Burn as it comes (its AdamW) or the project's fused AdamW, as training uses.
+    let mut optim = if infer::conv_op::gemm_kernels_enabled() {
+        train::fused_adamw::FusedAdamW::new(1e-4).init(None)
+    } else {
+        burn::optim::AdamWConfig::new().init()
+    };
     let data = synthetic_batch(&config, batch, &device);
     let mut rng = ChaCha8Rng::seed_from_u64(1);
     let mut step = |network: Network| -> Network {

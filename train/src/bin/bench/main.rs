@@ -39,6 +39,10 @@ enum Command {
         /// Print JSON lines instead of a table.
         #[arg(long)]
         json: bool,
+        /// Burn as it comes: its own convolution kernels and AdamW instead of
+        /// the project's GEMM kernels and fused AdamW (for comparison).
+        #[arg(long)]
+        burn_kernels: bool,
     },
     /// GFLOP/s of the convolution kernels (forward, input and weight
     /// gradient): the project's GEMM kernels and Burn's flex kernels.
@@ -71,8 +75,8 @@ enum Command {
 
 fn main() -> Result<()> {
     match Cli::parse().command {
-        Command::Detectors { backend, width, batch, steps, only, json } => {
-            detectors::run(backend, width, batch, steps, only, json)
+        Command::Detectors { backend, width, batch, steps, only, json, burn_kernels } => {
+            detectors::run(backend, width, batch, steps, only, json, burn_kernels)
         }
         Command::Conv { reps, json } => conv::run(reps, json),
         Command::TrainStep { mut models, batch, warmup, steps, json } => {
