@@ -7,8 +7,6 @@
 //! Plugged in without forking Burn: a backend extension trait implemented
 //! for `Flex`, and for `Autodiff<Flex>` with a hand-written backward step.
 
-use std::sync::atomic::{AtomicBool, Ordering};
-
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
 use burn::backend::autodiff::grads::Gradients;
@@ -23,30 +21,19 @@ use burn::prelude::*;
 use burn::tensor::DType;
 
 use crate::conv_kernels::{self, ConvGeometry};
+use crate::cpu_kernels;
 
-static ENABLED: AtomicBool = AtomicBool::new(true);
-
-/// Turns the GEMM kernels on or off for the whole process (on by default);
-/// off, every convolution runs Burn's own kernels. For benchmarks and tests
-/// that compare the two.
-pub fn set_gemm_kernels(enabled: bool) {
-    ENABLED.store(enabled, Ordering::Relaxed);
-}
-
-pub fn gemm_kernels_enabled() -> bool {
-    ENABLED.load(Ordering::Relaxed)
-}
-
-/// `conv.forward(x)`: through the GEMM kernels unless they are turned off.
+/// `conv.forward(x)`: through the GEMM kernels unless the project's kernels
+/// are turned off (`cpu_kernels::set_enabled`).
 pub fn conv2d(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
-    if gemm_kernels_enabled() { gemm_conv2d(conv, x) } else { conv.forward(x) }
+    if cpu_kernels::enabled() { gemm_conv2d(conv, x) } else { conv.forward(x) }
 }
 
 /// `conv.forward(x)` through the GEMM kernels where they apply (a flex
 /// device, f32, a bias, explicit padding), Burn's own path elsewhere.
 pub fn gemm_conv2d(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
     let Some(bias) = conv.bias.as_ref() else { return conv.forward(x) };
-    if !is_flex(&x.device()) || x.dtype() != DType::F32 {
+    if !cpu_kernels::is_flex(&x.device()) || x.dtype() != DType::F32 {
         return conv.forward(x);
     }
     // `Same` padding depends on the input size; it keeps Burn's path.
@@ -63,10 +50,6 @@ pub fn gemm_conv2d(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
         bias.val().into_dispatch(),
         options,
     ))
-}
-
-fn is_flex(device: &Device) -> bool {
-    device.clone().without_autodiff() == Device::flex()
 }
 
 #[backend_extension(Flex, Autodiff)]

@@ -9,6 +9,7 @@ pub mod checkpoint;
 pub mod config;
 pub mod conv_kernels;
 pub mod conv_op;
+pub mod cpu_kernels;
 pub mod detector;
 pub mod eval;
 pub mod faster_rcnn;
@@ -18,6 +19,7 @@ pub mod metrics;
 pub mod network;
 pub mod pretrained;
 pub mod roi_align;
+pub mod roi_align_native;
 pub mod trunk;
 
 pub use config::{Backbone, DetectorConfig};

@@ -1,17 +1,31 @@
 //! RoIAlign (torchvision's `roi_align` with `aligned=True` and a fixed
-//! sampling ratio) built from `grid_sample_2d`, so that autodiff gives its
-//! gradient with respect to the feature map for free.
+//! sampling ratio). On flex it runs the native kernel of `roi_align_native`;
+//! elsewhere it is built from `grid_sample_2d`, so that autodiff gives its
+//! gradient with respect to the feature map on any device (that composition
+//! equals torchvision's for boxes inside the map; at the border torchvision
+//! clamps samples onto the edge where `grid_sample` fades them to zero).
 
 use burn::nn::pool::AvgPool2dConfig;
 use burn::prelude::*;
+use burn::tensor::DType;
 use burn::tensor::ops::{GridSampleOptions, GridSamplePaddingMode, InterpolateMode};
 
 use crate::boxes::BBox;
+use crate::{cpu_kernels, roi_align_native};
 
 /// Pools each of `rois` (in feature-map pixels) from one feature map
 /// `[1, C, H, W]` to `[K, C, output, output]`. Each output bin averages
 /// `sampling x sampling` bilinear samples.
 pub fn roi_align(features: Tensor<4>, rois: &[BBox], output: usize, sampling: usize) -> Tensor<4> {
+    let native = cpu_kernels::enabled() && cpu_kernels::is_flex(&features.device());
+    if native && features.dtype() == DType::F32 && !rois.is_empty() {
+        return roi_align_native::roi_align_flex(features, rois, output, sampling);
+    }
+    roi_align_grid_sample(features, rois, output, sampling)
+}
+
+/// RoIAlign as a `grid_sample_2d` composition (any device, differentiable).
+pub fn roi_align_grid_sample(features: Tensor<4>, rois: &[BBox], output: usize, sampling: usize) -> Tensor<4> {
     let [_, c, h, w] = features.dims();
     let device = features.device();
     let k = rois.len();

@@ -7,7 +7,7 @@
 use burn::prelude::*;
 use infer::anchors::AnchorConfig;
 use infer::boxes::{BBox, BoxCoder, batched_nms, box_iou, nms, remove_small};
-use infer::roi_align::roi_align;
+use infer::roi_align::{roi_align, roi_align_grid_sample};
 use serde_json::Value;
 
 /// The package folder, read when the test runs (cargo sets it), so that a
@@ -131,23 +131,32 @@ fn clipping_and_small_box_removal_match() {
 
 #[test]
 fn roi_align_matches_for_boxes_inside_the_map() {
-    roi_align_matches_on(Device::flex());
+    roi_align_matches_on(Device::flex(), roi_align);
 }
 
-/// Under autodiff, `grid_sample_2d` runs Burn's reference composition.
+/// Under autodiff (the training path) the native kernel runs too.
 #[test]
 fn roi_align_matches_under_autodiff() {
-    roi_align_matches_on(Device::flex().autodiff());
+    roi_align_matches_on(Device::flex().autodiff(), roi_align);
 }
 
-fn roi_align_matches_on(device: Device) {
+/// The `grid_sample_2d` composition, which other devices use.
+#[test]
+fn roi_align_composition_matches_for_boxes_inside_the_map() {
+    roi_align_matches_on(Device::flex(), roi_align_grid_sample);
+    roi_align_matches_on(Device::flex().autodiff(), roi_align_grid_sample);
+}
+
+type RoiAlignFn = fn(Tensor<4>, &[BBox], usize, usize) -> Tensor<4>;
+
+fn roi_align_matches_on(device: Device, op: RoiAlignFn) {
     let f = fixture();
     let r = &f["roi_align"];
     let shape: Vec<usize> = indices(&r["shape"]);
     let map =
         Tensor::<4>::from_data(TensorData::new(floats(&r["features"]), [1, shape[0], shape[1], shape[2]]), &device);
     let rois = boxes(&r["rois"]);
-    let out = infer::host(roi_align(
+    let out = infer::host(op(
         map,
         &rois,
         r["output_size"].as_u64().unwrap() as usize,
@@ -157,4 +166,30 @@ fn roi_align_matches_on(device: Device) {
     assert_eq!(out.len(), want.len());
     let worst = out.iter().zip(&want).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
     assert!(worst < 1e-5, "largest difference {worst}");
+}
+
+/// Boxes across the border (clamped and zeroed samples) and the gradient
+/// with respect to the feature map, against torchvision's autograd.
+#[test]
+fn native_roi_align_matches_at_the_border_and_in_its_gradient() {
+    let f = fixture();
+    let r = &f["roi_align_border"];
+    let shape: Vec<usize> = indices(&r["shape"]);
+    let device = Device::flex().autodiff();
+    let dims = [1, shape[0], shape[1], shape[2]];
+    let map = Tensor::<4>::from_data(TensorData::new(floats(&r["features"]), dims), &device).require_grad();
+    let rois = boxes(&r["rois"]);
+    let (output, sampling) =
+        (r["output_size"].as_u64().unwrap() as usize, r["sampling_ratio"].as_u64().unwrap() as usize);
+    let pooled = roi_align(map.clone(), &rois, output, sampling);
+    let weights = Tensor::<4>::from_data(TensorData::new(floats(&r["weights"]), pooled.dims()), &device);
+    let grads = (pooled.clone() * weights).sum().backward();
+    for (what, ours, want) in [
+        ("output", infer::host(pooled), floats(&r["output"])),
+        ("gradient", infer::host(map.grad(&grads).unwrap()), floats(&r["features_grad"])),
+    ] {
+        assert_eq!(ours.len(), want.len(), "{what}");
+        let worst = ours.iter().zip(&want).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+        assert!(worst < 1e-5, "{what}: largest difference {worst}");
+    }
 }

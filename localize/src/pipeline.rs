@@ -13,7 +13,7 @@ use crate::config::LocalizeConfig;
 use crate::ekf::Ekf;
 use crate::error::Result;
 use crate::fusion::CornerFusion;
-use crate::geometry::GeometryStages;
+use crate::geometry::{Geometry, GeometryStages};
 use crate::landmarks::LandmarkMap;
 use crate::plane_landmarks::{PlaneMap, RobotPlane};
 use crate::pose::{Correspondence, PlaneCorrespondence, PlaneSigmas, PoseSolver};
@@ -94,18 +94,36 @@ impl Localizer {
         })
     }
 
-    /// Processes one frame whose filter has been advanced to its time;
-    /// `pixels` are the detected 2D corners (or why there are none),
-    /// `detect_ms` the detector's time. The filter holds the fused pose after.
+    /// The planes and 3D corners of a frame's cloud (or why there are none).
+    /// It depends on neither the filter nor the image, so it can run while
+    /// the detector does (`run_sequence` runs the two side by side).
+    pub fn frame_geometry(
+        &self,
+        cloud: std::result::Result<PointCloud, String>,
+    ) -> std::result::Result<Geometry, String> {
+        let cloud = match cloud {
+            Ok(c) if c.is_empty() => return Err("no finite points".into()),
+            Ok(c) => c,
+            Err(why) => return Err(why),
+        };
+        let sensor = cloud.viewpoint.translation.vector;
+        self.geometry.run(&cloud.points, &sensor).map_err(|e| e.to_string())
+    }
+
+    /// Processes one frame whose filter has been advanced to its time:
+    /// `geometry` from `frame_geometry`, `pixels` the detected 2D corners (or
+    /// why there are none), `detect_ms` the detector's own time, `started`
+    /// when the frame's work began (its `total_ms` is the wall time since).
+    /// The filter holds the fused pose after.
     pub fn process(
         &mut self,
         stamp: f64,
         ekf: &mut Ekf,
-        cloud: std::result::Result<PointCloud, String>,
+        geometry: std::result::Result<Geometry, String>,
         pixels: std::result::Result<Vec<[f64; 2]>, String>,
         detect_ms: f64,
+        started: Instant,
     ) -> FrameReport {
-        let start = Instant::now();
         let first = self.frames_seen == 0;
         self.frames_seen += 1;
         let mut report = FrameReport {
@@ -130,18 +148,12 @@ impl Localizer {
         let finish = |mut report: FrameReport, ekf: &Ekf, status: FrameStatus| {
             report.pose = ekf.pose();
             report.status = status;
-            report.total_ms = detect_ms + start.elapsed().as_secs_f64() * 1e3;
+            report.total_ms = started.elapsed().as_secs_f64() * 1e3;
             report
         };
-        let cloud = match cloud {
-            Ok(c) if c.is_empty() => return finish(report, ekf, FrameStatus::BadCloud("no finite points".into())),
-            Ok(c) => c,
-            Err(why) => return finish(report, ekf, FrameStatus::BadCloud(why)),
-        };
-        let sensor = cloud.viewpoint.translation.vector;
-        let geometry = match self.geometry.run(&cloud.points, &sensor) {
+        let geometry = match geometry {
             Ok(g) => g,
-            Err(e) => return finish(report, ekf, FrameStatus::BadCloud(e.to_string())),
+            Err(why) => return finish(report, ekf, FrameStatus::BadCloud(why)),
         };
         report.normals_ms = geometry.normals_ms;
         report.planes_ms = geometry.planes_ms;

@@ -266,31 +266,55 @@ fn run(args: &RunArgs) -> Result<()> {
     Ok(())
 }
 
-/// Mean milliseconds of each geometry stage over scans along the route.
-fn bench_geometry(
+/// Scans along the route of `world`, `frames` of them evenly spaced.
+fn bench_scans(
     world: &datasets::world::World,
     lidar: &datasets::world::lidar::LidarConfig,
-    config: &LocalizeConfig,
     frames: usize,
-) -> Result<(f64, [f64; 3])> {
-    let stages = localize::geometry::GeometryStages::new(config)?;
+) -> Result<Vec<datasets::formats::PointCloud>> {
     let route = datasets::world::route::Route::new(&world.layout.route, 1.2);
     let rig = datasets::world::rig::Rig::default();
-    let (mut points, mut ms) = (0.0, [0.0; 3]);
-    for k in 0..frames {
-        let s = route.length() * (k as f64 + 0.5) / frames as f64;
-        let (xy, heading) = route.at(s);
-        let robot = datasets::world::route::pose_on_floor(&world.layout, xy, heading)
-            .context("the route left the free space")?;
-        let cloud = datasets::world::lidar::scan(world, lidar, &(robot * rig.robot_from_lidar), k as u64);
+    (0..frames)
+        .map(|k| {
+            let s = route.length() * (k as f64 + 0.5) / frames as f64;
+            let (xy, heading) = route.at(s);
+            let robot = datasets::world::route::pose_on_floor(&world.layout, xy, heading)
+                .context("the route left the free space")?;
+            Ok(datasets::world::lidar::scan(world, lidar, &(robot * rig.robot_from_lidar), k as u64))
+        })
+        .collect()
+}
+
+/// Mean milliseconds of each geometry stage over `scans`, run alone.
+fn bench_geometry(
+    stages: &localize::geometry::GeometryStages,
+    scans: &[datasets::formats::PointCloud],
+) -> Result<[f64; 3]> {
+    let mut ms = [0.0; 3];
+    for cloud in scans {
         let g = stages.run(&cloud.points, &datasets::math::Vec3::zeros())?;
-        points += cloud.len() as f64;
         ms[0] += g.normals_ms;
         ms[1] += g.planes_ms;
         ms[2] += g.corners_ms;
     }
-    let n = frames.max(1) as f64;
-    Ok((points / n, ms.map(|v| v / n)))
+    Ok(ms.map(|v| v / scans.len().max(1) as f64))
+}
+
+/// Mean wall milliseconds of a frame as `localize run` does it: the
+/// geometry and the detector side by side.
+fn bench_frame(
+    stages: &localize::geometry::GeometryStages,
+    scans: &[datasets::formats::PointCloud],
+    detector: &infer::detector::Detector,
+    image: &image::DynamicImage,
+) -> Result<f64> {
+    let start = std::time::Instant::now();
+    for cloud in scans {
+        let (geometry, _) =
+            rayon::join(|| stages.run(&cloud.points, &datasets::math::Vec3::zeros()), || detector.detect(image));
+        geometry?;
+    }
+    Ok(start.elapsed().as_secs_f64() * 1e3 / scans.len().max(1) as f64)
 }
 
 fn bench(args: &BenchArgs) -> Result<()> {
@@ -304,21 +328,23 @@ fn bench(args: &BenchArgs) -> Result<()> {
         azimuth_step_deg: 0.2,
         ..m8.clone()
     };
-    let detector_ms = if args.checkpoint.is_dir() {
-        let detector = infer::detector::Detector::load(&args.checkpoint, args.backend.device())?;
-        let image = image::DynamicImage::ImageRgb8(image::RgbImage::from_fn(640, 480, |x, y| {
-            let v = if (x / 80 + y / 60) % 2 == 0 { 200 } else { 40 };
-            image::Rgb([v, v, v])
-        }));
+    let image = image::DynamicImage::ImageRgb8(image::RgbImage::from_fn(640, 480, |x, y| {
+        let v = if (x / 80 + y / 60) % 2 == 0 { 200 } else { 40 };
+        image::Rgb([v, v, v])
+    }));
+    let detector = if args.checkpoint.is_dir() {
+        Some(infer::detector::Detector::load(&args.checkpoint, args.backend.device())?)
+    } else {
+        None
+    };
+    let detector_ms = detector.as_ref().map(|detector| {
         detector.detect(&image);
         let start = std::time::Instant::now();
         for _ in 0..args.frames {
             detector.detect(&image);
         }
-        Some(start.elapsed().as_secs_f64() * 1e3 / args.frames.max(1) as f64)
-    } else {
-        None
-    };
+        start.elapsed().as_secs_f64() * 1e3 / args.frames.max(1) as f64
+    });
     let mut rows = Vec::new();
     let plain = LocalizeConfig::default();
     let thinned = |size_m: f64| {
@@ -334,12 +360,20 @@ fn bench(args: &BenchArgs) -> Result<()> {
         ("dense-10cm", &dense, &thin10),
     ];
     for (name, lidar, config) in scans {
-        let (points, [normals, planes, corners]) = bench_geometry(&world, lidar, config, args.frames)?;
+        let clouds = bench_scans(&world, lidar, args.frames)?;
+        let stages = localize::geometry::GeometryStages::new(config)?;
+        let [normals, planes, corners] = bench_geometry(&stages, &clouds)?;
         let geometry = normals + planes + corners;
+        let sequential = geometry + detector_ms.unwrap_or(0.0);
+        let total = match &detector {
+            Some(detector) => bench_frame(&stages, &clouds, detector, &image)?,
+            None => geometry,
+        };
+        let points = clouds.iter().map(|c| c.len() as f64).sum::<f64>() / clouds.len().max(1) as f64;
         rows.push(serde_json::json!({
             "scan": name, "points": points.round(), "normals_ms": normals, "planes_ms": planes,
             "corners_ms": corners, "geometry_ms": geometry, "detector_ms": detector_ms,
-            "total_ms": geometry + detector_ms.unwrap_or(0.0),
+            "sequential_ms": sequential, "total_ms": total,
         }));
     }
     if args.json {
@@ -347,22 +381,24 @@ fn bench(args: &BenchArgs) -> Result<()> {
         return Ok(());
     }
     println!(
-        "{:<6} {:>8} {:>10} {:>10} {:>10} {:>11} {:>10}",
-        "scan", "points", "normals", "planes", "corners", "detector", "total"
+        "{:<10} {:>8} {:>10} {:>10} {:>10} {:>11} {:>12} {:>10}",
+        "scan", "points", "normals", "planes", "corners", "detector", "one by one", "total"
     );
     for r in &rows {
         let f = |k: &str| r[k].as_f64().unwrap_or(f64::NAN);
         println!(
-            "{:<10} {:>8.0} {:>8.1}ms {:>8.1}ms {:>8.1}ms {:>9.1}ms {:>8.1}ms",
+            "{:<10} {:>8.0} {:>8.1}ms {:>8.1}ms {:>8.1}ms {:>9.1}ms {:>10.1}ms {:>8.1}ms",
             r["scan"].as_str().unwrap_or(""),
             f("points"),
             f("normals_ms"),
             f("planes_ms"),
             f("corners_ms"),
             f("detector_ms"),
+            f("sequential_ms"),
             f("total_ms")
         );
     }
+    println!("(total: the geometry and the detector side by side, as `localize run` does; one by one: their sum)");
     println!(
         "(points: as scanned; dense-5cm and dense-10cm thin them to 5 and 10 cm voxels before the normals, inside the normals time)"
     );

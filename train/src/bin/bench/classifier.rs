@@ -19,7 +19,6 @@ use burn::nn::{Dropout, DropoutConfig, Linear, LinearConfig, Relu};
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::prelude::*;
 use infer::config::{Backbone, DetectorConfig};
-use infer::conv_op::set_gemm_kernels;
 use infer::trunk;
 use rand::rngs::ChaCha8Rng;
 use rand::{RngExt, SeedableRng};
@@ -106,7 +105,7 @@ fn cpu_seconds() -> f64 {
 /// Images per second and cores in use over `steps` timed steps (median step
 /// time), after `warmup` steps.
 fn time_steps(model: Model, batch: usize, warmup: usize, steps: usize, gemm: bool) -> Timing {
-    set_gemm_kernels(gemm);
+    infer::cpu_kernels::set_enabled(gemm);
     let device = Device::flex().autodiff();
     device.seed(1);
     let mut net = Classifier::new(model, &device);
@@ -140,7 +139,7 @@ fn time_steps(model: Model, batch: usize, warmup: usize, steps: usize, gemm: boo
         times.push(phases);
     }
     let cores = (cpu_seconds() - cpu_start) / wall_start.elapsed().as_secs_f64();
-    set_gemm_kernels(true);
+    infer::cpu_kernels::set_enabled(true);
     times.sort_by(|a, b| a.iter().sum::<f64>().total_cmp(&b.iter().sum::<f64>()));
     let median = times[times.len() / 2];
     Timing { images_per_s: batch as f64 / median.iter().sum::<f64>(), cores, phases_s: median }

@@ -1,0 +1,25 @@
+//! The switch for the project's own CPU kernels (GEMM convolutions, native
+//! RoIAlign), which replace Burn's on the flex backend. On by default; off,
+//! every operation runs Burn's own kernels (benchmarks and tests compare the
+//! two this way).
+
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use burn::prelude::*;
+
+static ENABLED: AtomicBool = AtomicBool::new(true);
+
+/// Turns the project's kernels on or off for the whole process.
+pub fn set_enabled(enabled: bool) {
+    ENABLED.store(enabled, Ordering::Relaxed);
+}
+
+pub fn enabled() -> bool {
+    ENABLED.load(Ordering::Relaxed)
+}
+
+/// Whether tensors on `device` live on flex (with or without autodiff), the
+/// backend the kernels are written for.
+pub fn is_flex(device: &Device) -> bool {
+    device.clone().without_autodiff() == Device::flex()
+}
