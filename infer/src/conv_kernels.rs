@@ -42,7 +42,7 @@ impl ConvGeometry {
     ) -> Option<Self> {
         let [batch, in_channels, h, w] = x;
         let [out_channels, group_in, kh, kw] = weight;
-        if groups == 0 || group_in * groups != in_channels || out_channels % groups != 0 {
+        if groups == 0 || kh == 0 || kw == 0 || group_in * groups != in_channels || out_channels % groups != 0 {
             return None;
         }
         let out = |i: usize| -> Option<usize> {
@@ -591,5 +591,6 @@ mod tests {
     fn shapes_that_do_not_fit_are_refused() {
         assert!(ConvGeometry::new([1, 3, 8, 8], [4, 2, 3, 3], [1, 1], [(0, 0); 2], [1, 1], 1).is_none());
         assert!(ConvGeometry::new([1, 3, 2, 2], [4, 3, 5, 5], [1, 1], [(0, 0); 2], [1, 1], 1).is_none());
+        assert!(ConvGeometry::new([1, 3, 8, 8], [4, 3, 0, 3], [1, 1], [(0, 0); 2], [1, 1], 1).is_none());
     }
 }
