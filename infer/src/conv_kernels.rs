@@ -109,6 +109,21 @@ impl ConvGeometry {
         self.in_hw[0] * self.in_hw[1]
     }
 
+    /// Values of one image, [C, H, W].
+    fn image_len(&self) -> usize {
+        self.in_channels * self.in_len()
+    }
+
+    /// Image `n` of an input `x`.
+    fn image<'a>(&self, x: &'a [f32], n: usize) -> &'a [f32] {
+        &x[n * self.image_len()..][..self.image_len()]
+    }
+
+    /// Where `group`'s first row of `tile` starts in an output-shaped buffer.
+    fn out_offset(&self, tile: Tile, group: usize) -> usize {
+        (tile.image * self.out_channels + group * self.group_out()) * self.out_len() + tile.start
+    }
+
     /// Multiply-adds of one pass (forward, input or weight gradient).
     pub fn flops(&self) -> f64 {
         2.0 * (self.batch * self.out_channels * self.out_len() * self.patch_len()) as f64
@@ -282,10 +297,10 @@ pub fn forward(x: &[f32], weight: &[f32], bias: Option<&[f32]>, geo: &ConvGeomet
     tasks.par_iter().for_each(|task| {
         let mut cols = vec![0.0f32; patch * geo.tile_columns()];
         for &tile in *task {
-            let image = &x[tile.image * geo.in_channels * geo.in_len()..][..geo.in_channels * geo.in_len()];
+            let image = geo.image(x, tile.image);
             for g in 0..geo.groups {
                 im2col(geo, image, g, tile, &mut cols);
-                let offset = (tile.image * geo.out_channels + g * og) * l + tile.start;
+                let offset = geo.out_offset(tile, g);
                 // SAFETY: out[image, group's rows, tile's columns] belongs to
                 // this tile alone; strides stay inside `out`, `weight`, `cols`.
                 unsafe {
@@ -340,10 +355,10 @@ pub fn weight_grad(x: &[f32], grad: &[f32], geo: &ConvGeometry) -> Vec<f32> {
             let mut acc = vec![0.0f32; geo.out_channels * patch];
             let mut cols = vec![0.0f32; patch * geo.tile_columns()];
             for &tile in *task {
-                let image = &x[tile.image * geo.in_channels * geo.in_len()..][..geo.in_channels * geo.in_len()];
+                let image = geo.image(x, tile.image);
                 for g in 0..geo.groups {
                     im2col(geo, image, g, tile, &mut cols);
-                    let offset = (tile.image * geo.out_channels + g * og) * l + tile.start;
+                    let offset = geo.out_offset(tile, g);
                     // SAFETY: `acc` and `cols` are this task's own; the
                     // strides stay inside `acc`, `grad` and `cols`.
                     unsafe {
@@ -420,17 +435,16 @@ fn flipped_transpose(weight: &[f32], geo: &ConvGeometry) -> Vec<f32> {
 pub fn input_grad_col2im(weight: &[f32], grad: &[f32], geo: &ConvGeometry) -> Vec<f32> {
     check_lengths(geo, None, Some(weight), Some(grad));
     let (patch, l, og) = (geo.patch_len(), geo.out_len(), geo.group_out());
-    let image_len = geo.in_channels * geo.in_len();
-    let mut dx = vec![0.0f32; geo.batch * image_len];
+    let mut dx = vec![0.0f32; geo.batch * geo.image_len()];
     let tiles = geo.tiles();
     // Tiles of one image overlap on the input, so images are the unit of
     // parallel work; a batch smaller than the thread count threads the GEMM.
     let parallelism = gemm_parallelism(geo.batch);
-    dx.par_chunks_mut(image_len.max(1)).enumerate().for_each(|(n, image)| {
+    dx.par_chunks_mut(geo.image_len().max(1)).enumerate().for_each(|(n, image)| {
         let mut cols = vec![0.0f32; patch * geo.tile_columns()];
         for &tile in tiles.iter().filter(|t| t.image == n) {
             for g in 0..geo.groups {
-                let offset = (n * geo.out_channels + g * og) * l + tile.start;
+                let offset = geo.out_offset(tile, g);
                 // SAFETY: `cols` is this task's own; strides stay inside
                 // `weight` (read transposed), `grad` and `cols`.
                 unsafe {

@@ -21,7 +21,7 @@ use burn::prelude::*;
 use burn::tensor::DType;
 
 use crate::conv_kernels::{self, ConvGeometry};
-use crate::cpu_kernels;
+use crate::cpu_kernels::{self, with_values};
 
 /// `conv.forward(x)`: through the GEMM kernels unless the project's kernels
 /// are turned off (`cpu_kernels::set_enabled`).
@@ -36,20 +36,24 @@ pub fn gemm_conv2d(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
     if !cpu_kernels::is_flex(&x.device()) || x.dtype() != DType::F32 {
         return conv.forward(x);
     }
-    // `Same` padding depends on the input size; it keeps Burn's path.
-    let (top, left, bottom, right) = match conv.padding {
-        PaddingConfig2d::Valid => (0, 0, 0, 0),
-        PaddingConfig2d::Explicit(top, left, bottom, right) => (top, left, bottom, right),
-        PaddingConfig2d::Same => return conv.forward(x),
-    };
-    let options =
-        ConvOptions::new_with_padding(conv.stride, [(top, bottom), (left, right)], conv.dilation, conv.groups);
+    let Some(options) = conv_options(conv) else { return conv.forward(x) };
     Tensor::from_dispatch(<Dispatch as GemmConvBackend>::conv2d_gemm(
         x.into_dispatch(),
         conv.weight.val().into_dispatch(),
         bias.val().into_dispatch(),
         options,
     ))
+}
+
+/// The options of `conv` (its padding resolved); `None` for `Same` padding,
+/// which depends on the input size and keeps Burn's path.
+pub fn conv_options(conv: &Conv2d) -> Option<ConvOptions<2>> {
+    let (top, left, bottom, right) = match conv.padding {
+        PaddingConfig2d::Valid => (0, 0, 0, 0),
+        PaddingConfig2d::Explicit(top, left, bottom, right) => (top, left, bottom, right),
+        PaddingConfig2d::Same => return None,
+    };
+    Some(ConvOptions::new_with_padding(conv.stride, [(top, bottom), (left, right)], conv.dilation, conv.groups))
 }
 
 #[backend_extension(Flex, Autodiff)]
@@ -73,15 +77,6 @@ fn geometry(x: &FloatTensor<Flex>, weight: &FloatTensor<Flex>, options: &ConvOpt
         return None;
     }
     ConvGeometry::new(dims4(x), dims4(weight), options.stride, options.padding, options.dilation, options.groups)
-}
-
-/// Runs `f` on the tensor's values (copied to a contiguous buffer only when
-/// the layout needs it).
-fn with_values<R>(t: &FloatTensor<Flex>, f: impl FnOnce(&[f32]) -> R) -> R {
-    match t.as_slice::<f32>() {
-        Some(values) => f(values),
-        None => f(t.to_contiguous().as_slice::<f32>().expect("a contiguous f32 tensor")),
-    }
 }
 
 fn flex_tensor(values: Vec<f32>, shape: [usize; 4]) -> FloatTensor<Flex> {

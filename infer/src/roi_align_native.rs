@@ -21,6 +21,7 @@ use burn::tensor::DType;
 use rayon::prelude::*;
 
 use crate::boxes::BBox;
+use crate::cpu_kernels::with_values;
 
 /// The sizes of one RoIAlign call: a feature map [C, H, W] pooled to
 /// `output x output` bins of `sampling x sampling` samples each.
@@ -39,29 +40,12 @@ type Taps = Option<[(usize, f32); 4]>;
 
 /// torchvision's `bilinear_interpolate`: samples within one pixel outside
 /// the map are clamped onto its edge, samples farther out read zero.
-fn taps(mut y: f32, mut x: f32, height: usize, width: usize) -> Taps {
+fn taps(y: f32, x: f32, height: usize, width: usize) -> Taps {
     if y < -1.0 || y > height as f32 || x < -1.0 || x > width as f32 {
         return None;
     }
-    y = y.max(0.0);
-    x = x.max(0.0);
-    let (mut y_low, mut x_low) = (y as usize, x as usize);
-    let (y_high, x_high);
-    if y_low >= height - 1 {
-        y_low = height - 1;
-        y_high = y_low;
-        y = y_low as f32;
-    } else {
-        y_high = y_low + 1;
-    }
-    if x_low >= width - 1 {
-        x_low = width - 1;
-        x_high = x_low;
-        x = x_low as f32;
-    } else {
-        x_high = x_low + 1;
-    }
-    let (ly, lx) = (y - y_low as f32, x - x_low as f32);
+    let (y_low, y_high, ly) = axis_taps(y, height);
+    let (x_low, x_high, lx) = axis_taps(x, width);
     let (hy, hx) = (1.0 - ly, 1.0 - lx);
     Some([
         (y_low * width + x_low, hy * hx),
@@ -69,6 +53,15 @@ fn taps(mut y: f32, mut x: f32, height: usize, width: usize) -> Taps {
         (y_high * width + x_low, ly * hx),
         (y_high * width + x_high, ly * lx),
     ])
+}
+
+/// Along one axis of `size` pixels: the two neighbouring pixels of `v` and
+/// the weight of the upper one; at or past the last pixel both are that
+/// pixel, with no fraction.
+fn axis_taps(v: f32, size: usize) -> (usize, usize, f32) {
+    let v = v.max(0.0);
+    let low = v as usize;
+    if low >= size - 1 { (size - 1, size - 1, 0.0) } else { (low, low + 1, v - low as f32) }
 }
 
 /// The samples of every bin of one box, bin by bin (row-major), each bin's
@@ -171,13 +164,6 @@ fn shape_of(features: &FloatTensor<Flex>, output: usize, sampling: usize) -> Roi
     RoiShape { channels: s[1], height: s[2], width: s[3], output, sampling }
 }
 
-fn values(t: &FloatTensor<Flex>) -> Vec<f32> {
-    match t.as_slice::<f32>() {
-        Some(v) => v.to_vec(),
-        None => t.to_contiguous().as_slice::<f32>().expect("a contiguous f32 tensor").to_vec(),
-    }
-}
-
 impl RoiAlignBackend for Flex {
     fn roi_align_native(
         features: FloatTensor<Self>,
@@ -187,7 +173,7 @@ impl RoiAlignBackend for Flex {
     ) -> FloatTensor<Self> {
         assert_eq!(features.dtype(), DType::F32, "the native RoIAlign takes f32 maps");
         let shape = shape_of(&features, output, sampling);
-        let out = forward(&values(&features), &rois, &shape);
+        let out = with_values(&features, |f| forward(f, &rois, &shape));
         let dims = [rois.len(), shape.channels, output, output];
         Flex::float_from_data(TensorData::new(out, dims), &Default::default())
     }
@@ -204,7 +190,7 @@ impl Backward<Flex, 1> for RoiAlignBackward {
         let grad = grads.consume::<Flex>(&ops.node);
         let (shape, rois) = ops.state;
         if let Some(node) = node_features {
-            let dx = backward(&values(&grad), &rois, &shape);
+            let dx = with_values(&grad, |g| backward(g, &rois, &shape));
             let dims = [1, shape.channels, shape.height, shape.width];
             grads.register::<Flex>(node.id, Flex::float_from_data(TensorData::new(dx, dims), &Default::default()));
         }

@@ -51,10 +51,6 @@ impl FusedAdamW {
     }
 }
 
-fn fused_device(device: &Device) -> bool {
-    device.clone().without_autodiff() == Device::flex()
-}
-
 impl Optimizer for FusedAdamW {
     type State<const D: usize> = AdamWState<D>;
 
@@ -67,7 +63,11 @@ impl Optimizer for FusedAdamW {
     ) -> (Tensor<D>, Option<Self::State<D>>) {
         let device = tensor.device();
         let amsgrad = state.as_ref().is_some_and(|s| s.momentum.max_moment_2.is_some());
-        if !fused_device(&device) || tensor.dtype() != DType::F32 || grad.dtype() != DType::F32 || amsgrad {
+        if !infer::cpu_kernels::is_flex(&device)
+            || tensor.dtype() != DType::F32
+            || grad.dtype() != DType::F32
+            || amsgrad
+        {
             return self.reference.step(lr, tensor, grad, state);
         }
         let shape = tensor.shape();

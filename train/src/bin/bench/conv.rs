@@ -10,11 +10,10 @@ use anyhow::Result;
 use burn::backend::ops::{ConvOptions, FloatTensorOps, ModuleOps};
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{Flex, TensorMetadata};
-use burn::nn::PaddingConfig2d;
 use burn::prelude::*;
 use infer::config::{Backbone, DEFAULT_WIDTH, DetectorConfig};
 use infer::conv_kernels::ConvGeometry;
-use infer::conv_op::{flex_forward, flex_input_grad, flex_weight_grad};
+use infer::conv_op::{conv_options, flex_forward, flex_input_grad, flex_weight_grad};
 use infer::network::Network;
 use rand::rngs::ChaCha8Rng;
 use rand::{RngExt, SeedableRng};
@@ -64,20 +63,11 @@ fn network_layers(backbone: Backbone, batch: usize) -> Vec<Layer> {
         .enumerate()
         .map(|(i, conv)| {
             let [_, c, h, w] = network.trunk_until(image.clone(), i).dims();
-            let (top, left, bottom, right) = match conv.padding {
-                PaddingConfig2d::Explicit(t, l, b, r) => (t, l, b, r),
-                _ => (0, 0, 0, 0),
-            };
             Layer {
                 name: format!("{} conv{}", backbone.name(), i + 1),
                 x: [batch, c, h, w],
                 weight: conv.weight.val().dims(),
-                options: ConvOptions::new_with_padding(
-                    conv.stride,
-                    [(top, bottom), (left, right)],
-                    conv.dilation,
-                    conv.groups,
-                ),
+                options: conv_options(conv).expect("the networks pad explicitly"),
             }
         })
         .collect()
