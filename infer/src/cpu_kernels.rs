@@ -1,5 +1,5 @@
 //! The switch for the project's own CPU kernels (GEMM convolutions, native
-//! RoIAlign), which replace Burn's on the flex backend. On by default; off,
+//! RoIAlign and max pooling), which replace Burn's on the flex backend. On by default; off,
 //! every operation runs Burn's own kernels (benchmarks and tests compare the
 //! two this way), and what those kernels share: telling a flex device and
 //! reading a flex tensor's values.

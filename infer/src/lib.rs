@@ -15,6 +15,7 @@ pub mod eval;
 pub mod faster_rcnn;
 pub mod grid_net;
 pub mod labeled;
+pub mod max_pool_native;
 pub mod metrics;
 pub mod network;
 pub mod pretrained;

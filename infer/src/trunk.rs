@@ -10,6 +10,7 @@ use burn::nn::{Initializer, PaddingConfig2d, Relu};
 use burn::prelude::*;
 
 use crate::conv_op::conv2d;
+use crate::max_pool_native::max_pool2d;
 
 /// torchvision's VGG initialisation: He normal over the fan-out, zero bias.
 /// (PyTorch's default init leaves a 13-layer VGG without batch norm nearly
@@ -72,7 +73,7 @@ pub fn vgg16_forward_range(
     for i in layers {
         x = act.forward(conv2d(&convs[i], x));
         if VGG16_POOL_AFTER.contains(&i) && (last_pool || i != 12) {
-            x = pool.forward(x);
+            x = max_pool2d(pool, x);
         }
     }
     x
@@ -127,7 +128,7 @@ pub fn alexnet_forward_range(
     for i in layers {
         x = act.forward(conv2d(&convs[i], x));
         if matches!(i, 0 | 1) || (i == 4 && last_pool) {
-            x = pool.forward(x);
+            x = max_pool2d(pool, x);
         }
     }
     x

@@ -69,24 +69,52 @@ impl NormalEstimator {
         }
         let k = NonZero::new(k).expect("checked above");
         Ok(points
-            .par_iter()
-            .map(|p| {
-                let neighbours = tree.nearest_n::<SquaredEuclidean>(&[p.x, p.y, p.z], k);
-                let at = |i: u64| points[i as usize].cast::<f64>().coords;
-                let mean = neighbours.iter().fold(Vec3::zeros(), |a, n| a + at(n.item)) / neighbours.len() as f64;
-                let mut covariance = Mat3::zeros();
-                for n in &neighbours {
-                    let d = at(n.item) - mean;
-                    covariance += d * d.transpose();
-                }
-                let (mut normal, curvature) = smallest_eigenvector(&covariance);
-                if normal.dot(&(sensor - p.cast::<f64>().coords)) < 0.0 {
-                    normal = -normal;
-                }
-                PointNormal { normal, curvature }
+            .par_chunks(HINT_CHUNK)
+            .flat_map_iter(|chunk| {
+                let mut radius2 = f32::INFINITY;
+                chunk.iter().map(move |p| {
+                    let neighbours = nearest_with_hint(tree, p, k, &mut radius2);
+                    let at = |i: u64| points[i as usize].cast::<f64>().coords;
+                    let mean = neighbours.iter().fold(Vec3::zeros(), |a, n| a + at(n.item)) / neighbours.len() as f64;
+                    let mut covariance = Mat3::zeros();
+                    for n in &neighbours {
+                        let d = at(n.item) - mean;
+                        covariance += d * d.transpose();
+                    }
+                    let (mut normal, curvature) = smallest_eigenvector(&covariance);
+                    if normal.dot(&(sensor - p.cast::<f64>().coords)) < 0.0 {
+                        normal = -normal;
+                    }
+                    PointNormal { normal, curvature }
+                })
             })
             .collect())
     }
+}
+
+/// Points searched in order by one task, each search bounded by the
+/// previous one's neighbourhood.
+const HINT_CHUNK: usize = 256;
+
+/// The `k` nearest neighbours of `p` (unordered). Scans list points in
+/// sweep order, so a point's neighbourhood is about as large as the
+/// previous point's: a search within 1.5 x that radius (`radius2`, squared,
+/// updated here) prunes most of the tree and returns the same k points
+/// whenever it finds k; otherwise it is repeated without a bound.
+fn nearest_with_hint(
+    tree: &PointTree,
+    p: &Point3<f32>,
+    k: NonZero<usize>,
+    radius2: &mut f32,
+) -> Vec<kiddo::NearestNeighbour<f32, u64>> {
+    let query = [p.x, p.y, p.z];
+    let mut found = tree.nearest_n_within::<SquaredEuclidean>(&query, *radius2, k, false);
+    if found.len() < k.get() && radius2.is_finite() {
+        found = tree.nearest_n_within::<SquaredEuclidean>(&query, f32::INFINITY, k, false);
+    }
+    let farthest = found.iter().fold(0.0f32, |m, n| m.max(n.distance));
+    *radius2 = if farthest > 0.0 { farthest * 2.25 } else { f32::INFINITY };
+    found
 }
 
 /// The unit eigenvector of the smallest eigenvalue of a symmetric 3x3 matrix
@@ -99,4 +127,53 @@ pub fn smallest_eigenvector(covariance: &Mat3) -> (Vec3, f64) {
     }
     let (index, lambda) = eigen.eigenvalues.iter().enumerate().min_by(|a, b| a.1.total_cmp(b.1)).expect("three values");
     (eigen.eigenvectors.column(index).normalize(), lambda.max(0.0) / trace)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::rngs::ChaCha8Rng;
+    use rand::{RngExt, SeedableRng};
+
+    /// The k nearest by brute force, as sorted indices.
+    fn brute_force(points: &[Point3<f32>], p: &Point3<f32>, k: usize) -> Vec<usize> {
+        let mut order: Vec<usize> = (0..points.len()).collect();
+        order.sort_by(|&a, &b| (points[a] - p).norm_squared().total_cmp(&(points[b] - p).norm_squared()));
+        order.truncate(k);
+        order.sort_unstable();
+        order
+    }
+
+    #[test]
+    fn the_bounded_search_finds_exactly_the_k_nearest_in_any_order() {
+        // Rings of a scan (sweep order, where the bound helps), with one
+        // far-away cluster so that the previous radius is sometimes too small.
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let mut points: Vec<Point3<f32>> = Vec::new();
+        for ring in 0..6 {
+            for step in 0..300 {
+                let a = step as f32 * std::f32::consts::TAU / 300.0;
+                let r = 3.0 + rng.random_range(-0.02..0.02);
+                points.push(Point3::new(r * a.cos(), r * a.sin(), -1.0 + 0.15 * ring as f32));
+            }
+            for _ in 0..20 {
+                points.push(Point3::new(20.0 + rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), 0.0));
+            }
+        }
+        let mut shuffled = points.clone();
+        for i in (1..shuffled.len()).rev() {
+            shuffled.swap(i, rng.random_range(0..=i));
+        }
+        let k = NonZero::new(25).unwrap();
+        for cloud in [&points, &shuffled] {
+            let tree = build_tree(cloud);
+            let mut radius2 = f32::INFINITY;
+            for p in cloud.iter() {
+                let mut found: Vec<usize> =
+                    nearest_with_hint(&tree, p, k, &mut radius2).iter().map(|n| n.item as usize).collect();
+                found.sort_unstable();
+                assert_eq!(found, brute_force(cloud, p, k.get()), "at {p:?}");
+            }
+        }
+    }
 }

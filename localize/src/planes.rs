@@ -8,10 +8,10 @@
 //! the same solid angle. A plain theta x phi grid would spread the floor's
 //! votes (phi near 0, theta undefined) over a whole row of cells.
 
-use std::collections::HashMap;
-
 use datasets::math::{Mat3, Vec3};
 use nalgebra::Point3;
+use rayon::prelude::*;
+use rustc_hash::FxHashMap;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{LocalizeError, Result};
@@ -98,6 +98,63 @@ impl Plane {
 pub struct PlaneSet {
     pub planes: Vec<Plane>,
     pub labels: Vec<Option<u16>>,
+}
+
+/// The accumulator's live vote counts: each cell's own (points not yet
+/// taken by a plane) and the sum over its neighbourhood, kept up to date as
+/// planes take points instead of recounted for every plane.
+struct VoteCounts {
+    /// Each cell's neighbourhood (sorted keys, the cell included), only cells that hold votes.
+    neighbours: FxHashMap<u64, Vec<u64>>,
+    /// The cells whose neighbourhood holds a given cell.
+    neighbour_of: FxHashMap<u64, Vec<u64>>,
+    own: FxHashMap<u64, usize>,
+    smoothed: FxHashMap<u64, usize>,
+}
+
+impl VoteCounts {
+    fn new(ball: &Ball, cells: &FxHashMap<u64, Vec<u32>>) -> Self {
+        let mut neighbours = FxHashMap::default();
+        let mut neighbour_of: FxHashMap<u64, Vec<u64>> = FxHashMap::default();
+        let mut smoothed = FxHashMap::default();
+        for &key in cells.keys() {
+            let near: Vec<u64> = ball.neighbourhood(key).into_iter().filter(|k| cells.contains_key(k)).collect();
+            for &k in &near {
+                neighbour_of.entry(k).or_default().push(key);
+            }
+            smoothed.insert(key, near.iter().map(|k| cells[k].len()).sum());
+            neighbours.insert(key, near);
+        }
+        let own = cells.iter().map(|(&k, v)| (k, v.len())).collect();
+        Self { neighbours, neighbour_of, own, smoothed }
+    }
+
+    /// The cell with the most smoothed votes among those that still hold
+    /// votes of their own and are not `exhausted`; ties go to the smaller key.
+    fn strongest(&self, exhausted: &std::collections::HashSet<u64>) -> Option<(usize, u64)> {
+        self.own
+            .iter()
+            .filter(|&(k, &n)| n > 0 && !exhausted.contains(k))
+            .map(|(&k, _)| (self.smoothed[&k], std::cmp::Reverse(k)))
+            .max()
+            .map(|(votes, std::cmp::Reverse(k))| (votes, k))
+    }
+
+    /// Removes the votes of points now taken (one cell key per point).
+    fn withdraw(&mut self, taken: impl Iterator<Item = u64>) {
+        for key in taken {
+            *self.own.get_mut(&key).expect("a voting cell") -= 1;
+            for holder in &self.neighbour_of[&key] {
+                *self.smoothed.get_mut(holder).expect("a voting cell") -= 1;
+            }
+        }
+    }
+}
+
+/// The accumulator cell point `i` voted into, if it voted.
+fn cell_of(ball: &Ball, voting: &[(Vec3, f64)], normals: &[PointNormal], c: &PlaneConfig, i: u32) -> Option<u64> {
+    let i = i as usize;
+    (normals[i].curvature <= c.max_curvature).then(|| ball.key(&voting[i].0, voting[i].1, c.distance_bin_m))
 }
 
 pub struct PlaneExtractor {
@@ -188,38 +245,33 @@ impl PlaneExtractor {
             })
             .collect();
         let ball = Ball::new(c.angle_bin_deg);
-        let mut cells: HashMap<u64, Vec<u32>> = HashMap::new();
+        let mut cells: FxHashMap<u64, Vec<u32>> = FxHashMap::default();
         for (i, ((normal, rho), n)) in voting.iter().zip(normals).enumerate() {
             if n.curvature <= c.max_curvature {
                 cells.entry(ball.key(normal, *rho, c.distance_bin_m)).or_default().push(i as u32);
             }
         }
+        let mut votes = VoteCounts::new(&ball, &cells);
         let mut labels: Vec<Option<u16>> = vec![None; points.len()];
         let mut planes: Vec<Plane> = Vec::new();
         let cos_inlier = c.inlier_angle_deg.to_radians().cos();
         let mut exhausted: std::collections::HashSet<u64> = std::collections::HashSet::new();
         while planes.len() < c.max_planes {
-            // The strongest cell, counting only votes of points not yet taken.
-            for votes in cells.values_mut() {
-                votes.retain(|&i| labels[i as usize].is_none());
-            }
-            cells.retain(|_, v| !v.is_empty());
-            // Votes are smoothed over each cell's neighbourhood: a normal error
-            // of a degree moves rho by several centimetres at a few metres, so a
-            // plane's votes straddle cell borders.
-            let neighbourhood_votes =
-                |key: u64| ball.neighbourhood(key).iter().map(|k| cells.get(k).map_or(0, Vec::len)).sum::<usize>();
-            let best = cells
-                .keys()
-                .filter(|k| !exhausted.contains(*k))
-                .map(|&k| (neighbourhood_votes(k), std::cmp::Reverse(k)))
-                .max();
-            let Some((votes, std::cmp::Reverse(key))) = best else { break };
-            if votes < c.min_votes {
+            // The strongest cell, counting only votes of points not yet
+            // taken, smoothed over each cell's neighbourhood: a normal error
+            // of a degree moves rho by several centimetres at a few metres,
+            // so a plane's votes straddle cell borders.
+            let Some((smoothed, key)) = votes.strongest(&exhausted) else { break };
+            if smoothed < c.min_votes {
                 break;
             }
-            let seed: Vec<u32> =
-                ball.neighbourhood(key).iter().filter_map(|k| cells.get(k)).flatten().copied().collect();
+            let seed: Vec<u32> = votes.neighbours[&key]
+                .iter()
+                .filter_map(|k| cells.get(k))
+                .flatten()
+                .copied()
+                .filter(|&i| labels[i as usize].is_none())
+                .collect();
             let mut normal = seed.iter().fold(Vec3::zeros(), |a, &i| a + voting[i as usize].0).normalize();
             let mut distance = seed.iter().map(|&i| normal.dot(&at(i as usize))).sum::<f64>() / seed.len() as f64;
             let mut inliers = Vec::new();
@@ -227,6 +279,7 @@ impl PlaneExtractor {
             // good as one cell; the refit uses every inlier.
             for _ in 0..3 {
                 inliers = (0..points.len() as u32)
+                    .into_par_iter()
                     .filter(|&i| {
                         let i = i as usize;
                         labels[i].is_none()
@@ -247,6 +300,7 @@ impl PlaneExtractor {
             for &i in &plane.inliers {
                 labels[i as usize] = Some(planes.len() as u16);
             }
+            votes.withdraw(plane.inliers.iter().filter_map(|&i| cell_of(&ball, &voting, normals, c, i)));
             planes.push(plane);
         }
         merge_duplicates(&mut planes, &mut labels, c, &at);
