@@ -109,3 +109,34 @@ pub fn load_weights(dir: &Path, config: &DetectorConfig, device: &Device) -> Res
         Network::Grid(m) => Network::Grid(m.try_load_file(&path).map_err(weights_error)?),
     })
 }
+
+/// Loads the whole network of the checkpoint in `dir` (trunk, RPN and
+/// heads) as the starting point of a new run with `config`: fine-tuning a
+/// detector trained elsewhere. The two must describe the same layers; the
+/// post-processing and sampling settings may differ.
+pub fn load_for_fine_tuning(dir: &Path, config: &DetectorConfig, device: &Device) -> Result<Network, CheckpointError> {
+    let theirs = read_config(dir)?;
+    let same_layers = |c: &DetectorConfig| {
+        (
+            c.backbone,
+            c.width.to_bits(),
+            c.hidden,
+            c.in_channels,
+            c.num_classes,
+            c.anchors.per_location(),
+            c.roi.pool_size,
+            c.grid_cells,
+            c.grid_head,
+        )
+    };
+    if same_layers(&theirs) != same_layers(config) {
+        return Err(CheckpointError::Invalid {
+            path: dir.join(CONFIG_FILE),
+            message: format!(
+                "a {} of width {} (hidden {}) cannot start a {} of width {} (hidden {}): the layers differ",
+                theirs.backbone, theirs.width, theirs.hidden, config.backbone, config.width, config.hidden
+            ),
+        });
+    }
+    load_weights(dir, config, device)
+}

@@ -2,9 +2,8 @@
 //! dense scan has far more points than planes need; thinning it first makes
 //! the normals, the slowest stage, proportionally cheaper.
 
-use std::collections::HashMap;
-
 use nalgebra::Point3;
+use rustc_hash::FxHashMap;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{LocalizeError, Result};
@@ -36,7 +35,7 @@ impl VoxelFilter {
         if size <= 0.0 {
             return points.to_vec();
         }
-        let mut slots: HashMap<[i32; 3], usize> = HashMap::new();
+        let mut slots: FxHashMap<[i32; 3], usize> = FxHashMap::default();
         let mut sums: Vec<([f64; 3], u32)> = Vec::new();
         for p in points {
             let key = [(p.x / size).floor() as i32, (p.y / size).floor() as i32, (p.z / size).floor() as i32];

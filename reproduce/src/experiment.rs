@@ -16,7 +16,7 @@ use serde::{Deserialize, Serialize};
 use train::TrainConfig;
 use train::compare::{RunRecord, csv_table, markdown_table, read_run, write_loss_plots};
 
-use crate::plan::{FineTune, Plan, TrunkSource, trunk_family};
+use crate::plan::{FineTune, Plan, TrunkSource, pretrained_families, starts_from_whole_network};
 use crate::stage::{file_fingerprint, run_stage};
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -31,6 +31,7 @@ pub struct DataOutputs {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct TrunkOutputs {
     pub family: Backbone,
+    /// A trunk file, or a checkpoint folder when the whole network is the start.
     pub path: PathBuf,
     pub fingerprint: String,
     /// `shipped` or `pretrained here`.
@@ -107,11 +108,7 @@ pub fn run(out: &Path, plan: &Plan, show_progress: bool) -> Result<Results> {
         bail!("--out {}: exists and is not a folder", out.display());
     }
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let families = {
-        let mut f: Vec<Backbone> = plan.runs.iter().map(|r| trunk_family(r.backbone)).collect();
-        f.dedup();
-        f
-    };
+    let families = pretrained_families(&plan.runs);
     let total = 1 + families.len() + plan.runs.len() * 2 + 1;
     let mut step = 0;
     let mut reused = Vec::new();
@@ -130,8 +127,8 @@ pub fn run(out: &Path, plan: &Plan, show_progress: bool) -> Result<Results> {
     let mut trunks = Vec::new();
     for &family in &families {
         step += 1;
-        announce(step, total, &format!("trunk: {family}"));
-        let (trunk, was) = trunk_stage(out, plan, family, show_progress)?;
+        announce(step, total, &format!("pretrained {family}"));
+        let (trunk, was) = trunk_stage(out, plan, family, &trunks, show_progress)?;
         note(was && trunk.origin != "shipped", format!("trunk {family}"));
         trunks.push(trunk);
     }
@@ -140,7 +137,7 @@ pub fn run(out: &Path, plan: &Plan, show_progress: bool) -> Result<Results> {
     for ft in &plan.runs {
         step += 1;
         announce(step, total, &format!("fine-tune {} for {} epochs", ft.backbone, ft.epochs));
-        let trunk = trunks.iter().find(|t| t.family == trunk_family(ft.backbone)).expect("every family has a trunk");
+        let trunk = trunks.iter().find(|t| t.family == ft.backbone).expect("every backbone has a pretrained start");
         let (outputs, was) = fine_tune(out, plan, ft, (&data_dir, &data_key), trunk, show_progress)?;
         note(was, format!("training {}", ft.backbone));
         runs.push(outputs);
@@ -212,25 +209,50 @@ fn data_stage(out: &Path, plan: &Plan) -> Result<(PathBuf, serde_json::Value, Da
     Ok((dir, serde_json::to_value(&plan.datagen)?, data, was))
 }
 
-fn trunk_stage(out: &Path, plan: &Plan, family: Backbone, show_progress: bool) -> Result<(TrunkOutputs, bool)> {
+/// Where a backbone's fine-tuning starts, inside a pretraining folder
+/// (or the shipped `pretrained/<backbone>/`): the whole network's
+/// checkpoint for faster-rcnn, the trunk otherwise.
+fn start_path(dir: &Path, backbone: Backbone) -> PathBuf {
+    if starts_from_whole_network(backbone) {
+        dir.join(train::pretrain::DETECTOR_DIR)
+    } else {
+        dir.join(train::pretrain::TRUNK_FILE)
+    }
+}
+
+/// The file whose content identifies a start: the trunk, or the checkpoint's weights.
+fn start_fingerprint(path: &Path) -> Result<String> {
+    if path.is_dir() { file_fingerprint(&path.join(infer::checkpoint::WEIGHTS_FILE)) } else { file_fingerprint(path) }
+}
+
+/// The pretrained start of `family`: shipped, or pretrained here on a
+/// corpus (faster-rcnn's pretraining itself starting from the vgg16 trunk
+/// in `before`).
+fn trunk_stage(
+    out: &Path,
+    plan: &Plan,
+    family: Backbone,
+    before: &[TrunkOutputs],
+    show_progress: bool,
+) -> Result<(TrunkOutputs, bool)> {
     match &plan.trunks {
         TrunkSource::Shipped(checkpoints) => {
-            let path = checkpoints.join("pretrained").join(family.name()).join(train::pretrain::TRUNK_FILE);
-            if !path.is_file() {
+            let dir = checkpoints.join("pretrained").join(family.name());
+            let path = start_path(&dir, family);
+            if !path.exists() {
                 bail!(
-                    "{}: the shipped {family} trunk is missing; run from the repository's root, or pass --pretrain \
-                     to pretrain it on a generated corpus",
+                    "{}: the shipped pretrained {family} is missing; run from the repository's root, or pass \
+                     --pretrain to pretrain it on a generated corpus",
                     path.display()
                 );
             }
-            let meta_path = path.with_file_name(train::pretrain::META_FILE);
-            let corpus_ap50 = datasets::atomic::read_text(&meta_path)
+            let corpus_ap50 = datasets::atomic::read_text(&dir.join(train::pretrain::META_FILE))
                 .ok()
                 .and_then(|t| serde_json::from_str::<train::pretrain::TrunkMeta>(&t).ok())
                 .map(|m| m.corpus_test.ap50);
             let trunk = TrunkOutputs {
                 family,
-                fingerprint: file_fingerprint(&path)?,
+                fingerprint: start_fingerprint(&path)?,
                 path,
                 origin: "shipped".into(),
                 corpus_ap50,
@@ -239,14 +261,25 @@ fn trunk_stage(out: &Path, plan: &Plan, family: Backbone, show_progress: bool) -
             Ok((trunk, true))
         }
         TrunkSource::Pretrain { .. } => {
-            let config = plan.pretrain_config(family).expect("pretraining planned");
+            let mut config = plan.pretrain_config(family).expect("pretraining planned");
+            let mut from = None;
+            if family == Backbone::FasterRcnn {
+                let vgg16 = before
+                    .iter()
+                    .find(|t| t.family == Backbone::Vgg16)
+                    .context("faster-rcnn's pretraining starts from the vgg16 trunk, which was not made")?;
+                config.pretrained = Some(vgg16.path.clone());
+                from = Some(vgg16.fingerprint.clone());
+            }
             let dir = out.join("pretrain").join(family.name());
-            run_stage(&dir, &config, || {
+            let inputs = serde_json::json!({ "pretrain": &config, "from": from });
+            run_stage(&dir, &inputs, || {
                 let started = Instant::now();
-                let (path, meta) = train::pretrain::pretrain(&dir, &config, show_progress)?;
+                let (_, meta) = train::pretrain::pretrain(&dir, &config, show_progress)?;
+                let path = start_path(&dir, family);
                 Ok(TrunkOutputs {
                     family,
-                    fingerprint: file_fingerprint(&path)?,
+                    fingerprint: start_fingerprint(&path)?,
                     path,
                     origin: "pretrained here".into(),
                     corpus_ap50: Some(meta.corpus_test.ap50),
@@ -270,6 +303,9 @@ fn fine_tune(
     config.epochs = ft.epochs;
     config.backend = plan.backend;
     config.pretrained = Some(trunk.path.clone());
+    if trunk.path.is_dir() {
+        config.lr = train::config::WHOLE_NETWORK_LR;
+    }
     let inputs = serde_json::json!({ "train": &config, "trunk": &trunk.fingerprint, "data": data_key });
     run_stage(&run, &inputs, || {
         // An interrupted run with the same settings continues; any other

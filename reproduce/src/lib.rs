@@ -1,5 +1,5 @@
 //! The paper's experiment end to end: generate the data, take (or make) the
-//! pretrained trunks, fine-tune the three networks, compare their loss
+//! pretrained networks, fine-tune the three networks, compare their loss
 //! curves, localize the sequence with each detector and write a report.
 
 pub mod experiment;

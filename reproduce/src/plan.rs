@@ -17,22 +17,33 @@ use train::pretrain::PretrainConfig;
 /// the loss reductions).
 pub const BACKBONES: [Backbone; 3] = [Backbone::FasterRcnn, Backbone::Vgg16, Backbone::Alexnet];
 
-/// Which trunk a backbone transfers from: faster-rcnn and vgg16 share the
-/// VGG16 trunk, alexnet has its own.
-pub fn trunk_family(backbone: Backbone) -> Backbone {
-    match backbone {
-        Backbone::FasterRcnn | Backbone::Vgg16 => Backbone::Vgg16,
-        Backbone::Alexnet => Backbone::Alexnet,
-    }
+/// The pretrained networks a plan needs, each before those that start
+/// from it: vgg16 and alexnet (trunks), then faster-rcnn (a whole
+/// detector, whose own pretraining starts from the vgg16 trunk).
+pub fn pretrained_families(runs: &[FineTune]) -> Vec<Backbone> {
+    let planned = |b: Backbone| runs.iter().any(|r| r.backbone == b);
+    [Backbone::Vgg16, Backbone::Alexnet, Backbone::FasterRcnn]
+        .into_iter()
+        .filter(|&b| planned(b) || (b == Backbone::Vgg16 && planned(Backbone::FasterRcnn)))
+        .collect()
+}
+
+/// Whether a backbone's fine-tuning starts from the whole pretrained
+/// network (trunk, RPN and heads) rather than from its trunk alone. The
+/// box head and the RPN are most of what faster-rcnn learns; 200 images
+/// are too few to learn them from scratch without overfitting.
+pub fn starts_from_whole_network(backbone: Backbone) -> bool {
+    backbone == Backbone::FasterRcnn
 }
 
 /// Where the trunks come from.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub enum TrunkSource {
-    /// The trunks shipped in `DIR/pretrained/<family>/`, made by `pretrain`
-    /// with the default corpus (their `meta.json` says how).
+    /// The pretrained networks shipped in `DIR/pretrained/<backbone>/`,
+    /// made by `pretrain` with the default corpus (their `meta.json` says
+    /// how): `trunk.safetensors`, and for faster-rcnn `detector/`.
     Shipped(PathBuf),
-    /// Pretrain each trunk family here, on a generated corpus.
+    /// Pretrain each network here, on a generated corpus.
     Pretrain { corpus: CorpusConfig, epochs: usize },
 }
 

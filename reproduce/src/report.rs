@@ -130,15 +130,16 @@ pub fn markdown(plan: &Plan, results: &Results, machine: &Machine, invocation_s:
             );
         }
     }
-    let _ = writeln!(s, "Trunks transferred from:\n");
+    let _ = writeln!(s, "Transferred from:\n");
     for t in &results.trunks {
         let source = match &plan.trunks {
             TrunkSource::Shipped(_) => "shipped, pretrained by `pretrain` on a generated corpus of other worlds",
             TrunkSource::Pretrain { .. } => "pretrained in this run on a generated corpus of other worlds",
         };
+        let what = if t.path.is_dir() { "whole network (trunk and heads)" } else { "trunk" };
         let _ = writeln!(
             s,
-            "- {} trunk ({source}; corpus test AP@0.5 {})",
+            "- {} {what} ({source}; corpus test AP@0.5 {})",
             t.family,
             t.corpus_ap50.map(|a| format!("{a:.3}")).unwrap_or_else(|| "unknown".into())
         );

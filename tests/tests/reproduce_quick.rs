@@ -1,5 +1,6 @@
 //! The paper's experiment end to end in its `--quick` form: generate, pretrain
-//! two trunks, fine-tune three networks, compare, localize with each, report;
+//! three networks (the vgg16 and alexnet trunks, then the whole faster-rcnn
+//! from the vgg16 trunk), fine-tune three networks, compare, localize with each, report;
 //! then a second invocation that reuses every finished stage, and a third
 //! with one changed setting that redoes only what depends on it.
 
@@ -14,6 +15,9 @@ fn quick_reproduction_writes_a_sane_report_and_resumes() {
     let results = reproduce::reproduce(out, &plan, false).unwrap();
     assert!(results.reused.is_empty(), "{:?}", results.reused);
 
+    // faster-rcnn starts from its whole pretrained network, the others from trunks.
+    let starts: Vec<_> = results.trunks.iter().map(|t| (t.family, t.path.is_dir())).collect();
+    assert_eq!(starts, [(Backbone::Vgg16, false), (Backbone::Alexnet, false), (Backbone::FasterRcnn, true)]);
     assert_eq!(results.runs.len(), 3);
     for r in &results.runs {
         assert!((0.0..=1.0).contains(&r.metrics.ap50), "{:?} AP {}", r.backbone, r.metrics.ap50);
@@ -45,7 +49,7 @@ fn quick_reproduction_writes_a_sane_report_and_resumes() {
 
     // Run again: nothing to do but the report.
     let again = reproduce::reproduce(out, &plan, false).unwrap();
-    assert_eq!(again.reused.len(), 1 + 2 + 3 + 3, "{:?}", again.reused);
+    assert_eq!(again.reused.len(), 1 + 3 + 3 + 3, "{:?}", again.reused);
     assert_eq!(again.runs[0].final_train_loss, results.runs[0].final_train_loss);
 
     // One more alexnet epoch: only alexnet's training and localization rerun.
@@ -53,7 +57,7 @@ fn quick_reproduction_writes_a_sane_report_and_resumes() {
     longer.runs.iter_mut().find(|r| r.backbone == Backbone::Alexnet).unwrap().epochs += 1;
     let third = reproduce::reproduce(out, &longer, false).unwrap();
     let redone: Vec<_> = ["training alexnet", "localization alexnet"].into_iter().map(String::from).collect();
-    assert_eq!(third.reused.len(), 7, "{:?}", third.reused);
+    assert_eq!(third.reused.len(), 8, "{:?}", third.reused);
     assert!(redone.iter().all(|s| !third.reused.contains(s)), "{:?}", third.reused);
     let alexnet = third.records.iter().find(|r| r.config.detector.backbone == Backbone::Alexnet).unwrap();
     assert_eq!(alexnet.train_epochs.len(), 3);

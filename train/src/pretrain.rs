@@ -1,8 +1,9 @@
 //! Pretraining on a generated corpus: the transfer source when no external
 //! weights are at hand. Many synthetic worlds unlike the evaluation data
-//! (`DIR/corpus`), a training run on them (`DIR/run`, resumable), and the
-//! trunk in torchvision's naming (`DIR/trunk.safetensors` + `DIR/meta.json`)
-//! that `train --pretrained` accepts like external weights.
+//! (`DIR/corpus`), a training run on them (`DIR/run`, resumable), the trunk
+//! in torchvision's naming (`DIR/trunk.safetensors` + `DIR/meta.json`) that
+//! `train --pretrained` accepts like external weights, and the whole network
+//! as a checkpoint (`DIR/detector/`) that `train --pretrained` fine-tunes.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -19,6 +20,8 @@ use crate::TrainConfig;
 
 pub const TRUNK_FILE: &str = "trunk.safetensors";
 pub const META_FILE: &str = "meta.json";
+/// The whole pretrained network, as a checkpoint folder.
+pub const DETECTOR_DIR: &str = "detector";
 
 /// What to pretrain, on what.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -29,6 +32,10 @@ pub struct PretrainConfig {
     pub epochs: usize,
     pub lr: Option<f64>,
     pub seed: u64,
+    /// Where the pretraining itself starts from (a trunk file or a
+    /// checkpoint folder, as `train --pretrained`); `None`: from scratch.
+    #[serde(default)]
+    pub pretrained: Option<PathBuf>,
 }
 
 impl PretrainConfig {
@@ -39,6 +46,7 @@ impl PretrainConfig {
             epochs: if backbone == Backbone::FasterRcnn { 4 } else { 8 },
             lr: None,
             seed: 42,
+            pretrained: None,
         }
     }
 }
@@ -89,6 +97,7 @@ pub fn pretrain(out: &Path, config: &PretrainConfig, show_progress: bool) -> Res
             c.lr = lr;
         }
         c.seed = config.seed;
+        c.pretrained = config.pretrained.clone();
         // The corpus's own test split measures the pretraining; no validation split needed.
         c.val_fraction = 0.0;
         Some(c)
@@ -96,8 +105,9 @@ pub fn pretrain(out: &Path, config: &PretrainConfig, show_progress: bool) -> Res
     let summary = crate::train(train_config, &run, show_progress)?;
     let text = datasets::atomic::read_text(&run.join(crate::trainer::CONFIG_FILE))?;
     let used: TrainConfig = serde_json::from_str(&text).context("reading the run's settings")?;
-    let (det, network, _) =
+    let (det, network, checkpoint_meta) =
         infer::checkpoint::load(&run.join(crate::trainer::CHECKPOINT_DIR), &burn::prelude::Device::flex())?;
+    infer::checkpoint::save(&out.join(DETECTOR_DIR), &det, &network, &checkpoint_meta)?;
     let meta = TrunkMeta {
         backbone: det.backbone,
         width: det.width,

@@ -179,6 +179,12 @@ pub fn train_until(
         optim = optim.load(resume_dir.join(format!("{OPTIMIZER_STEM}.bpk"))).context("loading the optimizer state")?;
         (epochs_done, elapsed, csv) = (s.epochs_done, s.elapsed_s, s.csv);
         eprintln!("resuming {} after epoch {epochs_done} of {}", run.display(), config.epochs);
+    } else if let Some(path) = config.pretrained.as_deref().filter(|p| p.is_dir()) {
+        // A checkpoint folder: every layer starts from it (fine-tuning a detector).
+        network = checkpoint::load_for_fine_tuning(path, det, &device)?;
+        if show_progress {
+            eprintln!("{}: whole detector loaded (trunk, heads)", path.display());
+        }
     } else if let Some(path) = &config.pretrained {
         let report = load_trunk(&mut network, det, path, config.pretrained_input, config.pretrained_prune)?;
         if show_progress {

@@ -155,3 +155,48 @@ fn pretrain_writes_a_trunk_that_train_accepts() {
     assert_eq!(report.loaded.len(), 5, "{report:?}");
     assert!(report.unused.iter().all(|k| !k.starts_with("features.")), "{report:?}");
 }
+
+#[test]
+fn a_checkpoint_folder_starts_every_layer_and_one_of_another_width_is_refused() {
+    let _turn = one_at_a_time();
+    let dir = tempfile::tempdir().unwrap();
+    let first = dir.path().join("first");
+    train::train(Some(tiny_config(Backbone::FasterRcnn, 1)), &first, false).unwrap();
+    let saved_dir = first.join("checkpoint");
+    let device = Device::flex();
+    let saved = checkpoint::load_weights(&saved_dir, &checkpoint::read_config(&saved_dir).unwrap(), &device).unwrap();
+
+    // The heads come from the folder too, not from a fresh draw.
+    let config = tiny_config(Backbone::FasterRcnn, 1).detector;
+    let loaded = checkpoint::load_for_fine_tuning(&saved_dir, &config, &device).unwrap();
+    device.seed(99);
+    let fresh = Network::new(&config, &device);
+    let heads = |n: &Network| match n {
+        Network::FasterRcnn(m) => [
+            infer::host(m.rpn_cls.weight.val()),
+            infer::host(m.fc6.weight.val()),
+            infer::host(m.bbox_pred.weight.val()),
+        ],
+        Network::Grid(_) => unreachable!("a faster-rcnn checkpoint"),
+    };
+    assert_eq!(heads(&loaded), heads(&saved));
+    assert_ne!(heads(&fresh), heads(&saved));
+
+    // Through `train`: with the whole trunk frozen, its convolutions end
+    // the run exactly as the folder had them.
+    let second = dir.path().join("second");
+    let mut fine_tune = tiny_config(Backbone::FasterRcnn, 1);
+    fine_tune.pretrained = Some(saved_dir.clone());
+    fine_tune.freeze = Backbone::FasterRcnn.trunk_convs();
+    train::train(Some(fine_tune), &second, false).unwrap();
+    assert_eq!(conv_weights(&second), conv_weights(&first));
+
+    // Another width has other layers: refused, naming the folder's config.
+    let mut wider = tiny_config(Backbone::FasterRcnn, 1);
+    wider.detector = infer::config::DetectorConfig::new(Backbone::FasterRcnn, 0.25);
+    wider.pretrained = Some(saved_dir);
+    let err = train::train(Some(wider), &dir.path().join("third"), false).unwrap_err();
+    let text = format!("{err:#}");
+    assert!(text.contains("config.json") && text.contains("the layers differ"), "{text}");
+    assert!(!dir.path().join("third/losses.csv").exists());
+}

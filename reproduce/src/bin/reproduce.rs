@@ -19,8 +19,9 @@ struct Args {
     /// A smoke version of every stage in a few minutes (tiny data, two epochs).
     #[arg(long)]
     quick: bool,
-    /// Pretrain the trunks here on a generated corpus instead of starting
-    /// from the shipped ones (adds about an hour on two cores).
+    /// Pretrain the starting networks here on a generated corpus (the vgg16
+    /// and alexnet trunks, then the whole faster-rcnn from the vgg16 trunk)
+    /// instead of taking the shipped ones (adds about an hour on two cores).
     #[arg(long)]
     pretrain: bool,
     /// Your own data instead of the generated: `DIR/detection` (COCO
@@ -28,7 +29,7 @@ struct Args {
     /// odometry, IMU, calibration, optional groundtruth.txt).
     #[arg(long)]
     data: Option<PathBuf>,
-    /// The folder holding the shipped trunks (`pretrained/<network>/`).
+    /// The folder holding the shipped pretrained networks (`pretrained/<network>/`).
     #[arg(long, default_value = "checkpoints")]
     checkpoints: PathBuf,
     #[arg(long, value_enum, default_value_t)]

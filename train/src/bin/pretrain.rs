@@ -3,9 +3,11 @@
 //! corpus from many synthetic worlds unlike the evaluation data
 //! (`DIR/corpus`), trains the network on it (`DIR/run`, resumable: run the
 //! same command again), and writes the trunk as `DIR/trunk.safetensors` in
-//! torchvision's naming with `DIR/meta.json`. `train --pretrained
-//! DIR/trunk.safetensors` starts from it. A faster-rcnn or vgg16 trunk is
-//! VGG16-shaped and serves both.
+//! torchvision's naming with `DIR/meta.json`, and the whole network as the
+//! checkpoint folder `DIR/detector/`. `train --pretrained
+//! DIR/trunk.safetensors` starts the trunk from it; `train --pretrained
+//! DIR/detector` fine-tunes the whole network. A faster-rcnn or vgg16 trunk
+//! is VGG16-shaped and serves both.
 
 use std::path::PathBuf;
 
@@ -40,6 +42,10 @@ struct Args {
     lr: Option<f64>,
     #[arg(long, default_value_t = 42)]
     seed: u64,
+    /// Start the pretraining from these weights (a trunk file or a
+    /// checkpoint folder, as `train --pretrained`) instead of from scratch.
+    #[arg(long)]
+    pretrained: Option<PathBuf>,
 }
 
 fn main() -> Result<()> {
@@ -59,6 +65,12 @@ fn main() -> Result<()> {
     }
     config.lr = args.lr;
     config.seed = args.seed;
+    if let Some(p) = &args.pretrained
+        && !p.exists()
+    {
+        bail!("--pretrained {}: no such file or checkpoint folder", p.display());
+    }
+    config.pretrained = args.pretrained.clone();
     let (trunk, meta) = pretrain(&args.out, &config, true)?;
     println!(
         "trunk in {}; corpus test AP@0.5 {:.3}; {:.0} s of training",

@@ -31,7 +31,8 @@ struct Args {
     batch_size: usize,
     #[arg(long, value_enum, default_value_t = OptimizerKind::Adam)]
     optimizer: OptimizerKind,
-    /// Peak learning rate (default: 1e-3 for faster-rcnn and vgg16, 2e-3 for alexnet).
+    /// Peak learning rate (default: 1e-3 for faster-rcnn and vgg16, 2e-3 for
+    /// alexnet; 2e-4 when --pretrained is a whole checkpoint).
     #[arg(long)]
     lr: Option<f64>,
     #[arg(long, default_value_t = 42)]
@@ -51,8 +52,11 @@ struct Args {
     /// torchvision's fully connected classifier with its last layer replaced.
     #[arg(long, value_enum, default_value_t)]
     grid_head: GridHead,
-    /// Start the trunk from these weights: torchvision-named `.pth`/`.pt` or
-    /// `.safetensors` (VGG16, AlexNet, HED), or a trunk written by `pretrain`.
+    /// Start from these weights. A file starts the trunk: torchvision-named
+    /// `.pth`/`.pt` or `.safetensors` (VGG16, AlexNet, HED), or a trunk
+    /// written by `pretrain`. A checkpoint folder of the same backbone and
+    /// width starts every layer, trunk and heads (fine-tuning a detector,
+    /// e.g. `pretrain`'s `detector/`).
     #[arg(long)]
     pretrained: Option<PathBuf>,
     /// How the pretrained network expected its input.
@@ -102,11 +106,14 @@ fn main() -> Result<()> {
             }
             c.detector.grid_head = args.grid_head;
             if let Some(p) = &args.pretrained
-                && !p.is_file()
+                && !p.exists()
             {
-                bail!("--pretrained {}: no such file", p.display());
+                bail!("--pretrained {}: no such file or checkpoint folder", p.display());
             }
             c.pretrained = args.pretrained.clone();
+            if args.lr.is_none() && args.pretrained.as_deref().is_some_and(|p| p.is_dir()) {
+                c.lr = train::config::WHOLE_NETWORK_LR;
+            }
             c.pretrained_input = args.pretrained_input;
             c.pretrained_prune = args.pretrained_prune;
             c.freeze = args.freeze;
