@@ -180,18 +180,17 @@ fn shape_of(x: &FloatTensor<Flex>, kernel: usize, stride: usize) -> ([usize; 4],
 }
 
 /// The forward on flex: the output tensor and the argmax offsets.
-fn forward_flex(x: &FloatTensor<Flex>, kernel: usize, stride: usize) -> (FloatTensor<Flex>, PoolShape, Vec<u32>) {
+fn forward_flex(x: &FloatTensor<Flex>, [b, c, _, _]: [usize; 4], shape: &PoolShape) -> (FloatTensor<Flex>, Vec<u32>) {
     assert_eq!(x.dtype(), DType::F32, "the native max pooling takes f32 maps");
-    let ([b, c, _, _], shape) = shape_of(x, kernel, stride);
-    let (out, arg) = with_values(x, |v| forward(v, &shape));
+    let (out, arg) = with_values(x, |v| forward(v, shape));
     let (oh, ow) = shape.output();
-    let tensor = Flex::float_from_data(TensorData::new(out, [b, c, oh, ow]), &Default::default());
-    (tensor, shape, arg)
+    (Flex::float_from_data(TensorData::new(out, [b, c, oh, ow]), &Default::default()), arg)
 }
 
 impl MaxPoolBackend for Flex {
     fn max_pool2d_native(x: FloatTensor<Self>, kernel: usize, stride: usize) -> FloatTensor<Self> {
-        forward_flex(&x, kernel, stride).0
+        let (dims, shape) = shape_of(&x, kernel, stride);
+        forward_flex(&x, dims, &shape).0
     }
 }
 
@@ -216,8 +215,8 @@ impl<C: CheckpointStrategy> MaxPoolBackend for Autodiff<Flex, C> {
     fn max_pool2d_native(x: FloatTensor<Self>, kernel: usize, stride: usize) -> FloatTensor<Self> {
         match MaxPoolBackward.prepare::<C>([x.node()]).compute_bound().stateful() {
             OpsKind::Tracked(prep) => {
-                let (dims, _) = shape_of(x.primitive(), kernel, stride);
-                let (out, shape, arg) = forward_flex(x.primitive(), kernel, stride);
+                let (dims, shape) = shape_of(x.primitive(), kernel, stride);
+                let (out, arg) = forward_flex(x.primitive(), dims, &shape);
                 prep.finish((shape, arg, dims), out)
             }
             OpsKind::UnTracked(prep) => prep.finish(Flex::max_pool2d_native(x.into_primitive(), kernel, stride)),

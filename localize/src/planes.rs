@@ -151,12 +151,6 @@ impl VoteCounts {
     }
 }
 
-/// The accumulator cell point `i` voted into, if it voted.
-fn cell_of(ball: &Ball, voting: &[(Vec3, f64)], normals: &[PointNormal], c: &PlaneConfig, i: u32) -> Option<u64> {
-    let i = i as usize;
-    (normals[i].curvature <= c.max_curvature).then(|| ball.key(&voting[i].0, voting[i].1, c.distance_bin_m))
-}
-
 pub struct PlaneExtractor {
     config: PlaneConfig,
 }
@@ -245,10 +239,18 @@ impl PlaneExtractor {
             })
             .collect();
         let ball = Ball::new(c.angle_bin_deg);
+        // Each point's accumulator cell; only planar neighbourhoods vote.
+        let cell_of: Vec<Option<u64>> = voting
+            .iter()
+            .zip(normals)
+            .map(|((normal, rho), n)| {
+                (n.curvature <= c.max_curvature).then(|| ball.key(normal, *rho, c.distance_bin_m))
+            })
+            .collect();
         let mut cells: FxHashMap<u64, Vec<u32>> = FxHashMap::default();
-        for (i, ((normal, rho), n)) in voting.iter().zip(normals).enumerate() {
-            if n.curvature <= c.max_curvature {
-                cells.entry(ball.key(normal, *rho, c.distance_bin_m)).or_default().push(i as u32);
+        for (i, key) in cell_of.iter().enumerate() {
+            if let Some(key) = key {
+                cells.entry(*key).or_default().push(i as u32);
             }
         }
         let mut votes = VoteCounts::new(&ball, &cells);
@@ -300,7 +302,7 @@ impl PlaneExtractor {
             for &i in &plane.inliers {
                 labels[i as usize] = Some(planes.len() as u16);
             }
-            votes.withdraw(plane.inliers.iter().filter_map(|&i| cell_of(&ball, &voting, normals, c, i)));
+            votes.withdraw(plane.inliers.iter().filter_map(|&i| cell_of[i as usize]));
             planes.push(plane);
         }
         merge_duplicates(&mut planes, &mut labels, c, &at);

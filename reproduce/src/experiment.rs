@@ -302,10 +302,7 @@ fn fine_tune(
     let mut config = TrainConfig::new(ft.backbone, plan.width, data_dir.join("detection"));
     config.epochs = ft.epochs;
     config.backend = plan.backend;
-    config.pretrained = Some(trunk.path.clone());
-    if trunk.path.is_dir() {
-        config.lr = train::config::WHOLE_NETWORK_LR;
-    }
+    config.start_from(trunk.path.clone());
     let inputs = serde_json::json!({ "train": &config, "trunk": &trunk.fingerprint, "data": data_key });
     run_stage(&run, &inputs, || {
         // An interrupted run with the same settings continues; any other

@@ -97,6 +97,15 @@ impl TrainConfig {
         }
     }
 
+    /// Starts from `path`: a trunk file, or a checkpoint folder, which
+    /// starts every layer and lowers the peak LR to [`WHOLE_NETWORK_LR`].
+    pub fn start_from(&mut self, path: PathBuf) {
+        if path.is_dir() {
+            self.lr = WHOLE_NETWORK_LR;
+        }
+        self.pretrained = Some(path);
+    }
+
     pub fn validate(&self) -> Result<(), String> {
         self.detector.validate()?;
         if self.epochs == 0 || self.batch_size == 0 {

@@ -93,9 +93,6 @@ fn main() -> Result<()> {
             if let Some(e) = args.epochs {
                 c.epochs = e;
             }
-            if let Some(lr) = args.lr {
-                c.lr = lr;
-            }
             c.batch_size = args.batch_size;
             c.optimizer = args.optimizer;
             c.seed = args.seed;
@@ -110,9 +107,12 @@ fn main() -> Result<()> {
             {
                 bail!("--pretrained {}: no such file or checkpoint folder", p.display());
             }
-            c.pretrained = args.pretrained.clone();
-            if args.lr.is_none() && args.pretrained.as_deref().is_some_and(|p| p.is_dir()) {
-                c.lr = train::config::WHOLE_NETWORK_LR;
+            if let Some(p) = &args.pretrained {
+                c.start_from(p.clone());
+            }
+            // An explicit --lr wins over the start's default.
+            if let Some(lr) = args.lr {
+                c.lr = lr;
             }
             c.pretrained_input = args.pretrained_input;
             c.pretrained_prune = args.pretrained_prune;
