@@ -17,6 +17,9 @@ pub enum DataError {
     Byte { path: PathBuf, offset: u64, message: String },
     #[error("{path}: {message}")]
     Invalid { path: PathBuf, message: String },
+    /// A message of a recording: `index` counts the topic's messages from 0.
+    #[error("{path}: topic {topic}, message {index}: {message}")]
+    Message { path: PathBuf, topic: String, index: u64, message: String },
     #[error("{path}: {source}")]
     Json {
         path: PathBuf,
@@ -45,6 +48,9 @@ impl DataError {
     }
     pub fn invalid(path: &Path, message: impl Into<String>) -> Self {
         Self::Invalid { path: path.to_path_buf(), message: message.into() }
+    }
+    pub fn message(path: &Path, topic: &str, index: u64, message: impl Into<String>) -> Self {
+        Self::Message { path: path.to_path_buf(), topic: topic.to_string(), index, message: message.into() }
     }
     pub fn json(path: &Path, source: serde_json::Error) -> Self {
         Self::Json { path: path.to_path_buf(), source }

@@ -80,11 +80,15 @@ pub struct SequenceConfig {
     pub frames: Option<usize>,
     /// Radius of the route's turns.
     pub turn_radius_m: f64,
+    /// How long after each scan its image is taken (a camera on its own
+    /// clock); the image is rendered from the pose at its own time and named
+    /// by it. 0, the paper's, takes both together.
+    pub camera_delay_s: f64,
 }
 
 impl Default for SequenceConfig {
     fn default() -> Self {
-        Self { speed_mps: 0.05, rate_hz: 1.0, frames: None, turn_radius_m: 1.2 }
+        Self { speed_mps: 0.05, rate_hz: 1.0, frames: None, turn_radius_m: 1.2, camera_delay_s: 0.0 }
     }
 }
 
@@ -109,6 +113,9 @@ impl DatagenConfig {
         }
         if s.frames == Some(0) {
             return Err("sequence: frames must be at least 1".into());
+        }
+        if !(s.camera_delay_s.abs() <= 1.0) {
+            return Err(format!("sequence: camera delay {} s outside [-1, 1]", s.camera_delay_s));
         }
         if !(s.turn_radius_m > 0.1 && s.turn_radius_m < 3.0) {
             return Err(format!("sequence: turn radius {} m outside (0.1, 3)", s.turn_radius_m));
@@ -326,6 +333,8 @@ pub(crate) fn write_coco_splits(
 /// A recorded frame of the sequence.
 pub struct Frame {
     pub stamp: f64,
+    /// When the frame's image was taken (`stamp` + the camera delay).
+    pub image_stamp: f64,
     pub world_from_robot: Pose3,
     pub labels: Vec<CornerLabel>,
     pub cloud: formats::PointCloud,
@@ -337,9 +346,21 @@ pub struct Sequence {
     pub frames_after_route_end: usize,
 }
 
-/// The file stem of a frame: its timestamp with six decimals, as TUM RGB-D names files.
+/// The file stem of a frame: its timestamp in seconds with six decimals,
+/// zero-padded to ten integer digits so that names sort in time order
+/// (tools that take files in name order, KISS-ICP among them, need that).
 pub fn stamp_name(stamp: f64) -> String {
-    format!("{stamp:.6}")
+    format!("{stamp:017.6}")
+}
+
+/// The time a file stem gives: seconds (`10.5`, `0000000010.500000`), or
+/// nanoseconds when it has 16 digits or more and no point.
+pub fn parse_stamp_name(stem: &str) -> Option<f64> {
+    if stem.len() >= 16 && stem.bytes().all(|b| b.is_ascii_digit()) {
+        let ns: i64 = stem.parse().ok()?;
+        return Some(crate::recording::wire::ns_to_s(ns));
+    }
+    stem.parse::<f64>().ok().filter(|t| t.is_finite())
 }
 
 fn write_sequence(dir: &Path, world: &World, rig: &Rig, config: &DatagenConfig) -> Result<Sequence> {
@@ -359,8 +380,9 @@ fn write_sequence(dir: &Path, world: &World, rig: &Rig, config: &DatagenConfig) 
         .into_par_iter()
         .map(|k| {
             let stamp = k as f64 / s.rate_hz;
+            let image_stamp = stamp + s.camera_delay_s;
             let world_from_robot = pose_at(stamp);
-            let world_from_camera = world_from_robot * rig.robot_from_camera;
+            let world_from_camera = pose_at(image_stamp) * rig.robot_from_camera;
             // Lighting drifts slowly along the route, noise changes every frame.
             let mut lighting = Lighting::varied(key(config.seed, stream::SEQUENCE_LIGHT, 0), layout.lights.len());
             lighting.gain *= 1.0 + 0.15 * (stamp as f32 * 0.01).sin();
@@ -373,17 +395,18 @@ fn write_sequence(dir: &Path, world: &World, rig: &Rig, config: &DatagenConfig) 
                 &(world_from_robot * rig.robot_from_lidar),
                 key(config.seed, stream::LIDAR, k as u64),
             );
-            let name = stamp_name(stamp);
-            atomic::write_image(&dir.join("rgb").join(format!("{name}.png")), &DynamicImage::ImageRgb8(image))?;
-            formats::write_pcd(&dir.join("cloud").join(format!("{name}.pcd")), &cloud, PcdData::Binary)?;
+            let image_name = stamp_name(image_stamp);
+            atomic::write_image(&dir.join("rgb").join(format!("{image_name}.png")), &DynamicImage::ImageRgb8(image))?;
+            formats::write_pcd(&dir.join("cloud").join(format!("{}.pcd", stamp_name(stamp))), &cloud, PcdData::Binary)?;
             bar.inc(1);
-            Ok(Frame { stamp, world_from_robot, labels, cloud })
+            Ok(Frame { stamp, image_stamp, world_from_robot, labels, cloud })
         })
         .collect();
     bar.finish_and_clear();
     let frames: Vec<Frame> = frames.into_iter().collect::<Result<_>>()?;
 
-    let duration = (count - 1) as f64 / s.rate_hz;
+    // The logs run to the last image too when the camera lags.
+    let duration = (count - 1) as f64 / s.rate_hz + s.camera_delay_s.max(0.0);
     let odometry = simulate_odometry(&pose_at, duration, &config.motion, key(config.seed, stream::ODOMETRY, 0));
     let imu = simulate_imu(&pose_at, duration, &config.motion, key(config.seed, stream::IMU, 0));
     formats::write_odometry(&dir.join("odom.csv"), &odometry)?;
@@ -399,7 +422,7 @@ fn write_sequence(dir: &Path, world: &World, rig: &Rig, config: &DatagenConfig) 
         let id = k as u64 + 1;
         labels.images.push(CocoImage {
             id,
-            file_name: format!("rgb/{}.png", stamp_name(f.stamp)),
+            file_name: format!("rgb/{}.png", stamp_name(f.image_stamp)),
             width: rig.camera.width,
             height: rig.camera.height,
         });
@@ -460,7 +483,7 @@ fn write_previews(dir: &Path, world: &World, rig: &Rig, sequence: &Sequence) -> 
     let seq_dir: PathBuf = dir.parent().map(|p| p.join("sequence")).unwrap_or_default();
     for k in picks {
         let frame = &sequence.frames[k];
-        let path = seq_dir.join("rgb").join(format!("{}.png", stamp_name(frame.stamp)));
+        let path = seq_dir.join("rgb").join(format!("{}.png", stamp_name(frame.image_stamp)));
         let mut image = atomic::read_image(&path)?.to_rgb8();
         draw_labels(&mut image, &frame.labels);
         atomic::write_image(&dir.join(format!("frame_{k:05}_labels.png")), &DynamicImage::ImageRgb8(image))?;

@@ -16,6 +16,8 @@ pub mod generate;
 pub mod math;
 pub mod plot;
 pub mod preprocess;
+pub mod recording;
+pub mod undistort;
 pub mod world;
 
 pub use error::{DataError, Result};

@@ -12,6 +12,7 @@ use crate::normals::NormalConfig;
 use crate::plane_landmarks::PlaneLandmarkConfig;
 use crate::planes::PlaneConfig;
 use crate::pose::PoseConfig;
+use crate::sequence::SyncConfig;
 use crate::voxel::VoxelConfig;
 
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
@@ -26,4 +27,5 @@ pub struct LocalizeConfig {
     pub plane_landmarks: PlaneLandmarkConfig,
     pub pose: PoseConfig,
     pub ekf: EkfConfig,
+    pub sync: SyncConfig,
 }

@@ -249,6 +249,7 @@ pub fn propagate(x: &State, gyro: &Vec3, speed: f64, dt: f64) -> State {
 }
 
 /// Drives an EKF through the odometry and IMU logs, one frame time at a time.
+#[derive(Clone)]
 pub struct SensorReplay<'a> {
     odometry: &'a [OdometrySample],
     imu: &'a [ImuSample],

@@ -3,6 +3,7 @@
 //! an odometry/IMU prior, and trajectory metrics.
 
 pub mod config;
+pub mod bag_sequence;
 pub mod corner_source;
 pub mod corners;
 pub mod ekf;
@@ -12,6 +13,7 @@ pub mod fusion;
 pub mod geometry;
 pub mod landmarks;
 pub mod levels;
+pub mod motion;
 pub mod normals;
 pub mod pipeline;
 pub mod plane_landmarks;

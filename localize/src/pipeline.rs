@@ -112,7 +112,8 @@ impl Localizer {
 
     /// Processes one frame whose filter has been advanced to its time:
     /// `geometry` from `frame_geometry`, `pixels` the detected 2D corners (or
-    /// why there are none), `detect_ms` the detector's own time, `started`
+    /// why there are none), `lidar_from_camera` the camera at the image's
+    /// own time seen from the LIDAR at the scan's, `detect_ms` the detector's own time, `started`
     /// when the frame's work began (its `total_ms` is the wall time since).
     /// The filter holds the fused pose after.
     pub fn process(
@@ -121,6 +122,7 @@ impl Localizer {
         ekf: &mut Ekf,
         geometry: std::result::Result<Geometry, String>,
         pixels: std::result::Result<Vec<[f64; 2]>, String>,
+        lidar_from_camera: &Pose3,
         detect_ms: f64,
         started: Instant,
     ) -> FrameReport {
@@ -178,11 +180,10 @@ impl Localizer {
             }
         };
         let fusion_start = Instant::now();
-        let lidar_from_camera = self.calibration.camera_from_lidar.inverse();
         let matches = self.fusion.fuse(
             &pixels,
             &self.calibration.camera,
-            &lidar_from_camera,
+            lidar_from_camera,
             &geometry.planes,
             &geometry.corners,
             &geometry.points,

@@ -6,7 +6,7 @@ use std::fmt::Write as _;
 use std::path::Path;
 use std::time::Instant;
 
-use datasets::formats::{NonFinite, Trajectory, read_cloud, write_tum};
+use datasets::formats::{Trajectory, write_tum};
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 
@@ -17,7 +17,8 @@ use crate::error::Result;
 use crate::eval::{Alignment, ErrorSummary, compare};
 use crate::levels::{LevelMap, SegmentMetrics};
 use crate::pipeline::{FrameReport, Localizer};
-use crate::sequence::RecordedSequence;
+use crate::motion::FrameMotion;
+use crate::sequence::{FrameInput, SensorSequence};
 
 pub struct RunResult {
     /// The fused trajectory (world from robot).
@@ -31,20 +32,25 @@ pub struct RunResult {
 }
 
 pub fn run_sequence(
-    sequence: &RecordedSequence,
+    sequence: &dyn SensorSequence,
     source: &mut CornerSource,
     config: &LocalizeConfig,
     show_progress: bool,
 ) -> Result<RunResult> {
-    let mut localizer = Localizer::new(config, sequence.calibration.clone())?;
-    let start_time = sequence.frames[0].stamp;
+    config.sync.validate().map_err(crate::error::LocalizeError::Config)?;
+    let calibration = sequence.calibration().clone();
+    let mut localizer = Localizer::new(config, calibration.clone())?;
+    let stamps = sequence.frame_stamps();
+    let Some(&start_time) = stamps.first() else {
+        return Err(crate::error::LocalizeError::Config("the recording has no LIDAR scans".into()));
+    };
     // The world frame is the robot's pose at the first frame.
     let start = datasets::math::Pose3::identity();
     let mut fused = Ekf::new(config.ekf.clone(), &start, start_time);
     let mut dead_reckoning = Ekf::new(config.ekf.clone(), &start, start_time);
-    let mut replay = SensorReplay::new(&sequence.odometry, &sequence.imu, start_time);
-    let mut replay_reference = SensorReplay::new(&sequence.odometry, &sequence.imu, start_time);
-    let bar = if show_progress { ProgressBar::new(sequence.frames.len() as u64) } else { ProgressBar::hidden() };
+    let mut replay = SensorReplay::new(sequence.odometry(), sequence.imu(), start_time);
+    let mut replay_reference = SensorReplay::new(sequence.odometry(), sequence.imu(), start_time);
+    let bar = if show_progress { ProgressBar::new(stamps.len() as u64) } else { ProgressBar::hidden() };
     bar.set_style(
         ProgressStyle::with_template("{prefix} [{elapsed_precise}] {bar:30} {pos}/{len} frames {msg}")
             .expect("static template"),
@@ -57,15 +63,29 @@ pub fn run_sequence(
         corner_landmarks: Vec::new(),
         plane_landmarks: Vec::new(),
     };
-    for frame in &sequence.frames {
-        replay.advance(&mut fused, frame.stamp);
-        replay_reference.advance(&mut dead_reckoning, frame.stamp);
-        let cloud = read_cloud(&frame.cloud, NonFinite::Drop).map_err(|e| e.to_string());
-        let stem = frame.cloud.file_stem().and_then(|s| s.to_str()).unwrap_or_default().to_string();
-        let image = match &frame.image {
-            Some(path) => datasets::atomic::read_image(path).map_err(|e| e.to_string()),
-            None => Err(format!("no image for timestamp {stem}")),
+    let robot_from_camera = calibration.robot_from_camera();
+    let lidar_from_robot = calibration.robot_from_lidar.inverse();
+    sequence.for_each_frame(&mut |frame: FrameInput| {
+        let FrameInput { stamp, mut cloud, image } = frame;
+        let image_stamp = image.as_ref().ok().map(|i| i.stamp);
+        // The filter moves to the scan's time, and says where the robot was
+        // when the image was taken and while the sweep went round.
+        let times = FrameMotion::times_for(stamp, image_stamp, cloud.as_ref().ok().filter(|_| config.sync.deskew));
+        let motion = FrameMotion::sample(&mut fused, &mut replay, stamp, &times);
+        replay_reference.advance(&mut dead_reckoning, stamp);
+        if config.sync.deskew
+            && let Ok(c) = &mut cloud
+        {
+            motion.deskew(c, &calibration.robot_from_lidar);
+        }
+        let lidar_from_camera = match image_stamp {
+            Some(t) if t != stamp && config.sync.camera_motion => {
+                lidar_from_robot * motion.relative(t) * robot_from_camera
+            }
+            _ => calibration.camera_from_lidar.inverse(),
         };
+        let name = image.as_ref().map_or_else(|_| datasets::generate::stamp_name(stamp), |i| i.name.clone());
+        let image = image.and_then(|i| i.image);
         // The cloud's geometry and the detector are independent until fusion:
         // run them side by side, so each fills the cores the other leaves idle.
         let started = Instant::now();
@@ -73,16 +93,17 @@ pub fn run_sequence(
             || localizer.frame_geometry(cloud),
             || match (&image, &mut *source) {
                 (Err(why), CornerSource::Detector { .. }) => (Err(why.clone()), 0.0),
-                (image, source) => source.corners(&stem, image.as_ref().ok()),
+                (image, source) => source.corners(&name, image.as_ref().ok()),
             },
         );
-        let report = localizer.process(frame.stamp, &mut fused, geometry, pixels, detect_ms, started);
+        let report = localizer.process(stamp, &mut fused, geometry, pixels, &lidar_from_camera, detect_ms, started);
         bar.set_message(report.status.label());
         bar.inc(1);
-        result.trajectory.push(frame.stamp, report.pose);
-        result.reference.push(frame.stamp, dead_reckoning.pose());
+        result.trajectory.push(stamp, report.pose);
+        result.reference.push(stamp, dead_reckoning.pose());
         result.frames.push(report);
-    }
+        Ok(())
+    })?;
     bar.finish();
     result.corner_landmarks = localizer.map.landmarks.clone();
     result.plane_landmarks = localizer.plane_map.landmarks.clone();
@@ -105,10 +126,12 @@ pub struct RunMetrics {
     pub mean_total_ms: f64,
 }
 
-pub fn metrics(sequence: &RecordedSequence, result: &RunResult) -> Result<Option<RunMetrics>> {
-    let Some(truth) = &sequence.ground_truth else { return Ok(None) };
-    let world = sequence.dir.join("world.json");
-    let levels = if world.is_file() { Some(LevelMap::read(&world)?) } else { None };
+pub fn metrics(sequence: &dyn SensorSequence, result: &RunResult) -> Result<Option<RunMetrics>> {
+    let Some(truth) = sequence.ground_truth() else { return Ok(None) };
+    let levels = match sequence.world_description() {
+        Some(world) => Some(LevelMap::read(&world)?),
+        None => None,
+    };
     let measure = |estimate: &Trajectory| -> Option<TrajectoryMetrics> {
         let comparison = compare(truth, estimate, Alignment::None, 0.01).ok()?;
         let per_level = levels.as_ref().map(|l| l.per_segment(&comparison, truth)).unwrap_or_default();

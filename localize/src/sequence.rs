@@ -1,14 +1,86 @@
-//! A recorded sequence on disk (the layout `datagen` writes and DESIGN.md
-//! documents): `cloud/<t>.pcd|ply|bin`, `rgb/<t>.png|jpg`, `odom.csv`,
-//! `imu.csv`, `calib.json` and, when known, `groundtruth.txt` (TUM).
+//! What localization reads, whatever the recording: the calibration, the
+//! odometry and IMU logs, the ground truth, and the frames (a LIDAR scan
+//! each, with the nearest camera image within a tolerance). Two sources
+//! give it: a sequence folder (here) and a ROS bag (`bag_sequence`).
+//!
+//! The folder layout (`datagen` writes it, DESIGN.md documents it):
+//! `cloud/<t>.pcd|ply|bin`, `rgb/<t>.png|jpg`, `odom.csv`, `imu.csv`,
+//! `calib.json` and, when known, `groundtruth.txt` (TUM). `<t>` is the time
+//! in seconds (`datagen` pads it with zeros so that names sort in time
+//! order, e.g. `0000000010.500000`) or, with 16 digits or more and no
+//! point, in nanoseconds; the clouds and the images keep their own clocks.
 
 use std::path::{Path, PathBuf};
 
+use datasets::math::Pose3;
 use datasets::formats::{
-    Calibration, ImuSample, OdometrySample, Trajectory, read_calibration, read_imu, read_odometry, read_tum,
+    Calibration, ImuSample, NonFinite, OdometrySample, PointCloud, Trajectory, read_calibration, read_cloud, read_imu,
+    read_odometry, read_tum,
 };
+use image::DynamicImage;
+use serde::{Deserialize, Serialize};
 
 use crate::error::{LocalizeError, Result};
+
+/// How frames take their images and their points' times.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SyncConfig {
+    /// A scan takes the image nearest in time within this many seconds;
+    /// further away, the frame has no image.
+    pub image_tolerance_s: f64,
+    /// Undo the motion during a sweep when the cloud has per-point times.
+    pub deskew: bool,
+    /// Cast the detector's rays from the camera's pose at the image's own
+    /// time (predicted by the filter); off, from its pose at the scan's time.
+    pub camera_motion: bool,
+}
+
+impl Default for SyncConfig {
+    fn default() -> Self {
+        Self { image_tolerance_s: 0.05, deskew: true, camera_motion: true }
+    }
+}
+
+impl SyncConfig {
+    pub fn validate(&self) -> std::result::Result<(), String> {
+        if !(self.image_tolerance_s >= 0.0 && self.image_tolerance_s <= 10.0) {
+            return Err(format!("sync.image_tolerance_s must be in [0, 10] s, got {}", self.image_tolerance_s));
+        }
+        Ok(())
+    }
+}
+
+/// The image a frame takes, at its own time.
+pub struct FrameImage {
+    pub stamp: f64,
+    /// The key of the image for labels (`--corners-from-labels`): its file stem.
+    pub name: String,
+    pub image: std::result::Result<DynamicImage, String>,
+}
+
+/// One frame as the pipeline gets it.
+pub struct FrameInput {
+    /// The scan's time: the frame's time in the trajectory.
+    pub stamp: f64,
+    pub cloud: std::result::Result<PointCloud, String>,
+    /// Why there is none when there is none.
+    pub image: std::result::Result<FrameImage, String>,
+}
+
+/// A recording localization can run on.
+pub trait SensorSequence {
+    fn calibration(&self) -> &Calibration;
+    fn odometry(&self) -> &[OdometrySample];
+    fn imu(&self) -> &[ImuSample];
+    fn ground_truth(&self) -> Option<&Trajectory>;
+    /// The `world.json` of a generated sequence (levels for per-level metrics).
+    fn world_description(&self) -> Option<PathBuf>;
+    /// Scan times in order.
+    fn frame_stamps(&self) -> Vec<f64>;
+    /// Hands each frame, in time order, to `visit`.
+    fn for_each_frame(&self, visit: &mut dyn FnMut(FrameInput) -> Result<()>) -> Result<()>;
+}
 
 /// One frame's files; the image may be missing (the frame then falls back
 /// to the reference pose).
@@ -16,7 +88,13 @@ use crate::error::{LocalizeError, Result};
 pub struct FrameFiles {
     pub stamp: f64,
     pub cloud: PathBuf,
-    pub image: Option<PathBuf>,
+    pub image: Option<ImageFile>,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct ImageFile {
+    pub stamp: f64,
+    pub path: PathBuf,
 }
 
 pub struct RecordedSequence {
@@ -26,6 +104,7 @@ pub struct RecordedSequence {
     pub odometry: Vec<OdometrySample>,
     pub imu: Vec<ImuSample>,
     pub ground_truth: Option<Trajectory>,
+    pub image_tolerance_s: f64,
 }
 
 const CLOUD_EXTENSIONS: [&str; 3] = ["pcd", "ply", "bin"];
@@ -35,11 +114,61 @@ fn error(path: &Path, message: impl Into<String>) -> LocalizeError {
     LocalizeError::Sequence { path: path.to_path_buf(), message: message.into() }
 }
 
+pub use datasets::generate::parse_stamp_name as stamp_of_name;
+
+/// The files of `dir` with one of `extensions`, by time, with their times;
+/// a name that is not a time is an error naming it.
+fn stamped_files(dir: &Path, extensions: &[&str], what: &str) -> Result<Vec<(f64, PathBuf)>> {
+    let entries = std::fs::read_dir(dir).map_err(|e| error(dir, e.to_string()))?;
+    let mut files = Vec::new();
+    for entry in entries {
+        let path = entry.map_err(|e| error(dir, e.to_string()))?.path();
+        let Some(ext) = path.extension().and_then(|e| e.to_str()) else { continue };
+        if !extensions.contains(&ext.to_ascii_lowercase().as_str()) {
+            continue;
+        }
+        let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or_default();
+        let stamp = stamp_of_name(stem).ok_or_else(|| {
+            error(&path, format!("{what} file name is not a timestamp (seconds, or nanoseconds with 16+ digits)"))
+        })?;
+        files.push((stamp, path));
+    }
+    files.sort_by(|a, b| a.0.total_cmp(&b.0));
+    for w in files.windows(2) {
+        if w[1].0 == w[0].0 {
+            return Err(error(&w[1].1, format!("duplicate timestamp {} (also {})", w[1].0, w[0].1.display())));
+        }
+    }
+    Ok(files)
+}
+
+/// For each of `scans` (sorted), the index of the nearest of `images`
+/// (sorted) within `tolerance` seconds.
+pub fn nearest_within(scans: &[f64], images: &[f64], tolerance: f64) -> Vec<Option<usize>> {
+    scans
+        .iter()
+        .map(|&t| {
+            let k = images.partition_point(|&s| s < t);
+            [k.checked_sub(1), (k < images.len()).then_some(k)]
+                .into_iter()
+                .flatten()
+                .min_by(|&a, &b| (images[a] - t).abs().total_cmp(&(images[b] - t).abs()))
+                .filter(|&j| (images[j] - t).abs() <= tolerance)
+        })
+        .collect()
+}
+
 impl RecordedSequence {
+    /// Opens a folder with the default image tolerance.
     pub fn open(dir: &Path) -> Result<Self> {
+        Self::open_with(dir, &SyncConfig::default())
+    }
+
+    pub fn open_with(dir: &Path, sync: &SyncConfig) -> Result<Self> {
         if !dir.is_dir() {
             return Err(error(dir, "not a folder"));
         }
+        sync.validate().map_err(LocalizeError::Config)?;
         let calibration = read_calibration(&dir.join("calib.json"))?;
         let odometry = read_odometry(&dir.join("odom.csv"))?;
         let imu = read_imu(&dir.join("imu.csv"))?;
@@ -49,36 +178,119 @@ impl RecordedSequence {
             t.check_increasing(&truth_path)?;
         }
         let cloud_dir = dir.join("cloud");
-        let entries = std::fs::read_dir(&cloud_dir).map_err(|e| error(&cloud_dir, e.to_string()))?;
-        let mut frames = Vec::new();
-        for entry in entries {
-            let path = entry.map_err(|e| error(&cloud_dir, e.to_string()))?.path();
-            let Some(ext) = path.extension().and_then(|e| e.to_str()) else { continue };
-            if !CLOUD_EXTENSIONS.contains(&ext.to_ascii_lowercase().as_str()) {
-                continue;
-            }
-            let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or_default().to_string();
-            let stamp: f64 = stem
-                .parse()
-                .ok()
-                .filter(|t: &f64| t.is_finite())
-                .ok_or_else(|| error(&path, "file name is not a timestamp in seconds"))?;
-            let image =
-                IMAGE_EXTENSIONS.iter().map(|e| dir.join("rgb").join(format!("{stem}.{e}"))).find(|p| p.is_file());
-            frames.push(FrameFiles { stamp, cloud: path, image });
-        }
-        if frames.is_empty() {
+        let clouds = stamped_files(&cloud_dir, &CLOUD_EXTENSIONS, "cloud")?;
+        if clouds.is_empty() {
             return Err(error(&cloud_dir, "no point clouds (.pcd, .ply, .bin)"));
         }
-        frames.sort_by(|a, b| a.stamp.total_cmp(&b.stamp));
-        for w in frames.windows(2) {
-            if w[1].stamp == w[0].stamp {
-                return Err(error(
-                    &w[1].cloud,
-                    format!("duplicate timestamp {} (also {})", w[1].stamp, w[0].cloud.display()),
-                ));
-            }
+        let rgb = dir.join("rgb");
+        let images = if rgb.is_dir() { stamped_files(&rgb, &IMAGE_EXTENSIONS, "image")? } else { Vec::new() };
+        let scan_times: Vec<f64> = clouds.iter().map(|c| c.0).collect();
+        let image_times: Vec<f64> = images.iter().map(|c| c.0).collect();
+        let pairs = nearest_within(&scan_times, &image_times, sync.image_tolerance_s);
+        let frames = clouds
+            .into_iter()
+            .zip(pairs)
+            .map(|((stamp, cloud), image)| FrameFiles {
+                stamp,
+                cloud,
+                image: image.map(|j| ImageFile { stamp: images[j].0, path: images[j].1.clone() }),
+            })
+            .collect();
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            frames,
+            calibration,
+            odometry,
+            imu,
+            ground_truth,
+            image_tolerance_s: sync.image_tolerance_s,
+        })
+    }
+}
+
+impl SensorSequence for RecordedSequence {
+    fn calibration(&self) -> &Calibration {
+        &self.calibration
+    }
+    fn odometry(&self) -> &[OdometrySample] {
+        &self.odometry
+    }
+    fn imu(&self) -> &[ImuSample] {
+        &self.imu
+    }
+    fn ground_truth(&self) -> Option<&Trajectory> {
+        self.ground_truth.as_ref()
+    }
+    fn world_description(&self) -> Option<PathBuf> {
+        let world = self.dir.join("world.json");
+        world.is_file().then_some(world)
+    }
+    fn frame_stamps(&self) -> Vec<f64> {
+        self.frames.iter().map(|f| f.stamp).collect()
+    }
+    fn for_each_frame(&self, visit: &mut dyn FnMut(FrameInput) -> Result<()>) -> Result<()> {
+        for frame in &self.frames {
+            let cloud = read_cloud(&frame.cloud, NonFinite::Drop).map_err(|e| e.to_string());
+            let image = match &frame.image {
+                Some(file) => Ok(FrameImage {
+                    stamp: file.stamp,
+                    name: file.path.file_stem().and_then(|s| s.to_str()).unwrap_or_default().to_string(),
+                    image: datasets::atomic::read_image(&file.path).map_err(|e| e.to_string()),
+                }),
+                None => Err(format!("no image within {} s of scan {:.6}", self.image_tolerance_s, frame.stamp)),
+            };
+            visit(FrameInput { stamp: frame.stamp, cloud, image })?;
         }
-        Ok(Self { dir: dir.to_path_buf(), frames, calibration, odometry, imu, ground_truth })
+        Ok(())
+    }
+}
+
+/// The ground truth in the frame of the robot's pose at `start` (where
+/// localization puts its world), interpolated there.
+pub fn anchored(truth: &Trajectory, start: f64) -> Trajectory {
+    let k = truth.stamps.partition_point(|&t| t < start);
+    let origin = match (k.checked_sub(1), truth.stamps.get(k)) {
+        (Some(a), Some(&tb)) if tb > start => {
+            let ta = truth.stamps[a];
+            let s = (start - ta) / (tb - ta);
+            let (pa, pb) = (&truth.poses[a], &truth.poses[k]);
+            Pose3::from_parts(
+                pa.translation.vector.lerp(&pb.translation.vector, s).into(),
+                pa.rotation.slerp(&pb.rotation, s),
+            )
+        }
+        _ => truth.poses[k.min(truth.len() - 1)],
+    };
+    let inverse = origin.inverse();
+    Trajectory { stamps: truth.stamps.clone(), poses: truth.poses.iter().map(|p| inverse * p).collect() }
+}
+
+/// A sequence with its ground truth replaced (`localize run --gt FILE`).
+pub struct WithTruth {
+    pub inner: Box<dyn SensorSequence>,
+    pub truth: Trajectory,
+}
+
+impl SensorSequence for WithTruth {
+    fn calibration(&self) -> &Calibration {
+        self.inner.calibration()
+    }
+    fn odometry(&self) -> &[OdometrySample] {
+        self.inner.odometry()
+    }
+    fn imu(&self) -> &[ImuSample] {
+        self.inner.imu()
+    }
+    fn ground_truth(&self) -> Option<&Trajectory> {
+        Some(&self.truth)
+    }
+    fn world_description(&self) -> Option<PathBuf> {
+        self.inner.world_description()
+    }
+    fn frame_stamps(&self) -> Vec<f64> {
+        self.inner.frame_stamps()
+    }
+    fn for_each_frame(&self, visit: &mut dyn FnMut(FrameInput) -> Result<()>) -> Result<()> {
+        self.inner.for_each_frame(visit)
     }
 }

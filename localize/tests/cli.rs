@@ -61,3 +61,111 @@ fn bad_input_gives_a_message_naming_the_file() {
     let out = localize(&["eval", "--gt", "a", "--est", "b", "--align", "affine"]);
     assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("affine"));
 }
+
+fn recording(name: &str) -> String {
+    format!("{}/../datasets/tests/data/recordings/{name}", manifest_dir().display())
+}
+
+#[test]
+fn inspect_prints_topics_counts_rates_and_roles() {
+    let out = localize(&["inspect", &recording("ros1_lz4.bag")]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8_lossy(&out.stdout);
+    for want in ["ROS 1 bag", "Messages:          331", "/imu", "sensor_msgs/msg/Imu", "200 msgs", "ros1", "Duration:"] {
+        assert!(text.contains(want), "no `{want}` in\n{text}");
+    }
+    assert!(text.contains("lidar        /points (sensor_msgs/msg/PointCloud2, 10 messages)"), "{text}");
+    assert!(text.contains("camera       /camera/image_raw (sensor_msgs/msg/Image, 30 messages)"), "{text}");
+    assert!(text.contains("ground truth /ground_truth"), "{text}");
+    // A recording that cannot be run says why, and still prints what it holds.
+    let out = localize(&["inspect", &shared("ros_recordings/nav2_turtlebot.mcap")]);
+    assert!(out.status.success());
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("/amcl_pose") && text.contains("2639 msgs") && text.contains("no sensor_msgs/msg/PointCloud2 topic"), "{text}");
+}
+
+#[test]
+fn run_on_a_bag_writes_the_trajectory_in_the_recording_clock_and_its_metrics() {
+    let dir = tempfile::tempdir().unwrap();
+    let out_dir = dir.path().join("run");
+    let checkpoint = manifest_dir().join("../checkpoints/alexnet");
+    let out = localize(&[
+        "run",
+        "--bag",
+        &recording("rosbag2_mcap"),
+        "--checkpoint",
+        checkpoint.to_str().unwrap(),
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("10 of 10 scans have an image within 0.05 s"), "{stdout}");
+    let (trajectory, _) = datasets::formats::read_trajectory(&out_dir.join("trajectory.txt")).unwrap();
+    assert_eq!(trajectory.len(), 10);
+    // Epoch seconds of the LIDAR's header stamps.
+    for (k, t) in trajectory.stamps.iter().enumerate() {
+        assert!((t - (1_700_000_000.0 + 0.1 * k as f64)).abs() < 1e-6, "{t}");
+    }
+    let metrics: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("metrics.json")).unwrap()).unwrap();
+    assert_eq!(metrics["frames"], 10);
+    assert_eq!(metrics["fused"]["overall"]["matched"], 10);
+}
+
+#[test]
+fn bad_recordings_get_errors_naming_the_topic_and_message() {
+    let dir = tempfile::tempdir().unwrap();
+    let bytes = std::fs::read(recording("ros1_plain.bag")).unwrap();
+    let run = |bag: &std::path::Path| {
+        let out = localize(&["run", "--bag", bag.to_str().unwrap(), "--out", dir.path().join("o").to_str().unwrap()]);
+        assert!(!out.status.success());
+        String::from_utf8_lossy(&out.stderr).to_string()
+    };
+    // The scan at +0.5 s stamped +0.1 s: the LIDAR's clock jumps back.
+    let mut jumped = bytes.clone();
+    let mut pattern = 1_700_000_000u32.to_le_bytes().to_vec();
+    pattern.extend_from_slice(&500_000_000u32.to_le_bytes());
+    pattern.extend_from_slice(&10u32.to_le_bytes());
+    pattern.extend_from_slice(b"lidar_link");
+    let at = jumped.windows(pattern.len()).position(|w| w == pattern.as_slice()).expect("scan 5's header");
+    jumped[at + 4..at + 8].copy_from_slice(&100_000_000u32.to_le_bytes());
+    let path = dir.path().join("jumped.bag");
+    std::fs::write(&path, &jumped).unwrap();
+    let e = run(&path);
+    assert!(e.contains("topic /points, message 5: the clock jumps back"), "{e}");
+    // No /tf_static (renamed in place) and no --calib.
+    let mut no_tf = bytes.clone();
+    while let Some(at) = no_tf.windows(10).position(|w| w == b"/tf_static") {
+        no_tf[at..at + 10].copy_from_slice(b"/tf_statix");
+    }
+    let path = dir.path().join("no_tf.bag");
+    std::fs::write(&path, &no_tf).unwrap();
+    let e = run(&path);
+    assert!(e.contains("no /tf_static topic and no --calib"), "{e}");
+    // A recording that is not there.
+    let path = recording("rosbag2_sqlite3");
+    let e = run(std::path::Path::new(&path).join("missing").as_path());
+    assert!(e.contains("missing") && e.contains("no such file or folder"), "{e}");
+}
+
+#[test]
+fn eval_takes_a_pose_topic_of_a_bag_as_evo_does() {
+    let bag = shared("ros_recordings/ROS_example.bag");
+    let gt_tum = shared("ros_recordings/evo_reference/groundtruth.tum");
+    let est_tum = shared("ros_recordings/evo_reference/S-PTAM.tum");
+    let from_files = localize(&["eval", "--gt", &gt_tum, "--est", &est_tum, "--align", "se3", "--max-diff", "0.05", "--json"]);
+    let from_bag = localize(&[
+        "eval", "--gt", &bag, "--gt-topic", "groundtruth", "--est", &bag, "--est-topic", "S-PTAM", "--align", "se3",
+        "--max-diff", "0.05", "--json",
+    ]);
+    assert!(from_bag.status.success(), "{}", String::from_utf8_lossy(&from_bag.stderr));
+    let a: serde_json::Value = serde_json::from_slice(&from_files.stdout).unwrap();
+    let b: serde_json::Value = serde_json::from_slice(&from_bag.stdout).unwrap();
+    assert!(a["matched"].as_u64().unwrap() > 1000);
+    assert_eq!(a["matched"], b["matched"]);
+    let (x, y) = (a["ate_rmse"].as_f64().unwrap(), b["ate_rmse"].as_f64().unwrap());
+    assert!((x - y).abs() < 1e-9, "{x} vs {y}");
+    let out = localize(&["eval", "--gt", &bag, "--est", &est_tum]);
+    assert!(String::from_utf8_lossy(&out.stderr).contains("name its pose topic with --gt-topic"));
+}

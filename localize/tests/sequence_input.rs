@@ -125,9 +125,35 @@ fn frames_without_images_fall_back_and_say_why() {
     assert_eq!(result.trajectory.len(), 3);
     for (frame, stamp) in result.frames.iter().zip(["0.000000", "1.000000", "2.000000"]) {
         let FrameStatus::NoImage { why, walls } = &frame.status else { panic!("{:?}", frame.status) };
-        assert!(why.contains(&format!("no image for timestamp {stamp}")), "{why}");
+        assert!(why.contains(&format!("no image within 0.05 s of scan {stamp}")), "{why}");
         // The walls are not trusted yet after so few frames: nothing corrected.
         assert_eq!(*walls, 0);
         assert!(frame.status.label().starts_with("fallback to odometry/IMU"));
     }
+}
+
+#[test]
+fn scans_take_the_nearest_image_within_the_tolerance_on_its_own_clock() {
+    let dir = tempfile::tempdir().unwrap();
+    write_sequence(dir.path());
+    std::fs::create_dir_all(dir.path().join("rgb")).unwrap();
+    let image = image::DynamicImage::new_rgb8(640, 480);
+    // A camera 20 ms behind the scans, and one image 0.3 s off any scan;
+    // zero-padded and nanosecond names read as well as plain ones.
+    for name in ["0000000000.020000", "1020000000000000000", "2.3"] {
+        datasets::atomic::write_image(&dir.path().join("rgb").join(format!("{name}.png")), &image).unwrap();
+    }
+    let sequence = RecordedSequence::open(dir.path()).unwrap();
+    let taken: Vec<Option<f64>> = sequence.frames.iter().map(|f| f.image.as_ref().map(|i| i.stamp)).collect();
+    // 1020000000000000000 ns is 1.02e9 s, far from every scan.
+    assert_eq!(taken, [Some(0.02), None, None]);
+    let wide = localize::sequence::SyncConfig { image_tolerance_s: 0.5, ..Default::default() };
+    let sequence = RecordedSequence::open_with(dir.path(), &wide).unwrap();
+    let taken: Vec<Option<f64>> = sequence.frames.iter().map(|f| f.image.as_ref().map(|i| i.stamp)).collect();
+    assert_eq!(taken, [Some(0.02), None, Some(2.3)]);
+    assert_eq!(localize::sequence::stamp_of_name("1700000000123456789"), Some(1_700_000_000.123456789));
+    assert_eq!(datasets::generate::stamp_name(9.5), "0000000009.500000");
+    assert!(datasets::generate::stamp_name(9.5) < datasets::generate::stamp_name(10.0), "names sort in time order");
+    let bad = localize::sequence::SyncConfig { image_tolerance_s: f64::NAN, ..Default::default() };
+    assert!(RecordedSequence::open_with(dir.path(), &bad).err().unwrap().to_string().contains("image_tolerance_s"));
 }

@@ -38,6 +38,9 @@ struct Args {
     /// Detection images in the training split (default 200; the rest is the test split).
     #[arg(long)]
     train: Option<usize>,
+    /// Also write the sequence as a ROS 2 recording (one MCAP file) here.
+    #[arg(long)]
+    bag: Option<PathBuf>,
 }
 
 fn main() -> Result<()> {
@@ -88,6 +91,10 @@ fn main() -> Result<()> {
         args.out.display(),
         started.elapsed().as_secs_f64()
     );
+    if let Some(bag) = &args.bag {
+        let messages = datasets::recording::mcap_export::write_sequence_mcap(&args.out.join("sequence"), bag)?;
+        eprintln!("wrote {messages} messages to {}", bag.display());
+    }
     if summary.frames_after_route_end > 0 {
         eprintln!(
             "note: the route ends before the last {} frames; the robot stands still for them",

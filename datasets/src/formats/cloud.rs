@@ -18,11 +18,14 @@ pub struct PointCloud {
     pub viewpoint: Pose3,
     /// Points with a NaN or infinite coordinate that were dropped on reading.
     pub dropped_non_finite: usize,
+    /// Each point's time after the cloud's stamp (seconds), when the sensor
+    /// gives it (a spinning LIDAR's points over its sweep).
+    pub times: Option<Vec<f32>>,
 }
 
 impl PointCloud {
     pub fn new(points: Vec<Point3<f32>>, intensity: Option<Vec<f32>>) -> Self {
-        Self { points, intensity, viewpoint: Pose3::identity(), dropped_non_finite: 0 }
+        Self { points, intensity, viewpoint: Pose3::identity(), dropped_non_finite: 0, times: None }
     }
     pub fn len(&self) -> usize {
         self.points.len()
@@ -84,7 +87,13 @@ impl<'a> CloudBuilder<'a> {
     }
 
     pub fn finish(self, viewpoint: Pose3) -> PointCloud {
-        PointCloud { points: self.points, intensity: self.intensity, viewpoint, dropped_non_finite: self.dropped }
+        PointCloud {
+            points: self.points,
+            intensity: self.intensity,
+            viewpoint,
+            dropped_non_finite: self.dropped,
+            times: None,
+        }
     }
 }
 

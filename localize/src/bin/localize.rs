@@ -11,7 +11,8 @@ use localize::corner_source::CornerSource;
 use localize::eval::{Alignment, ErrorSummary, compare};
 use localize::levels::LevelMap;
 use localize::run::{metrics, run_sequence, write_outputs};
-use localize::sequence::RecordedSequence;
+use localize::bag_sequence::BagSequence;
+use localize::sequence::{RecordedSequence, SensorSequence, WithTruth};
 
 #[derive(Parser)]
 #[command(name = "localize", about = "Corner-fusion localization: camera corners + LIDAR planes")]
@@ -24,8 +25,10 @@ struct Cli {
 enum Command {
     /// Compares an estimated trajectory with ground truth (TUM, KITTI or EuRoC, detected from the content).
     Eval(EvalArgs),
-    /// Localizes a recorded sequence: trajectory, per-frame log and, with ground truth, metrics and a picture.
+    /// Localizes a recorded sequence (a folder or a ROS bag): trajectory, per-frame log and, with ground truth, metrics and a picture.
     Run(RunArgs),
+    /// Prints what a recording holds (as `ros2 bag info` does) and which topic each role would take.
+    Inspect(InspectArgs),
     /// Prints the planes and 3D corners of one point cloud (PCD, PLY or KITTI .bin).
     Planes(PlanesArgs),
     /// Milliseconds per frame of each stage on M8-like scans and on dense 100k-point scans.
@@ -47,10 +50,69 @@ struct BenchArgs {
 }
 
 #[derive(clap::Args)]
+struct InspectArgs {
+    /// A rosbag2 folder, an .mcap, a .db3 or a ROS 1 .bag.
+    path: PathBuf,
+    #[command(flatten)]
+    topics: TopicArgs,
+}
+
+/// Which topics of a recording play which role (found by type when not given).
+#[derive(clap::Args, Clone, Default)]
+struct TopicArgs {
+    #[arg(long)]
+    lidar_topic: Option<String>,
+    #[arg(long)]
+    image_topic: Option<String>,
+    #[arg(long)]
+    camera_info_topic: Option<String>,
+    #[arg(long)]
+    imu_topic: Option<String>,
+    #[arg(long)]
+    odom_topic: Option<String>,
+    /// A PoseStamped, PoseWithCovarianceStamped or Odometry topic with the ground truth.
+    #[arg(long)]
+    gt_topic: Option<String>,
+    /// The robot's TF frame.
+    #[arg(long, default_value = "base_link")]
+    base_frame: String,
+}
+
+impl TopicArgs {
+    fn options(&self, calib: Option<PathBuf>) -> localize::bag_sequence::BagOptions {
+        localize::bag_sequence::BagOptions {
+            lidar_topic: self.lidar_topic.clone(),
+            image_topic: self.image_topic.clone(),
+            camera_info_topic: self.camera_info_topic.clone(),
+            imu_topic: self.imu_topic.clone(),
+            odom_topic: self.odom_topic.clone(),
+            gt_topic: self.gt_topic.clone(),
+            base_frame: Some(self.base_frame.clone()),
+            calib,
+        }
+    }
+}
+
+#[derive(clap::Args)]
+#[group(id = "input", required = true, multiple = false, args = ["sequence", "bag"])]
 struct RunArgs {
     /// The sequence folder (cloud/, rgb/, odom.csv, imu.csv, calib.json[, groundtruth.txt]).
     #[arg(long)]
-    sequence: PathBuf,
+    sequence: Option<PathBuf>,
+    /// A ROS recording: a rosbag2 folder, an .mcap, a .db3 or a ROS 1 .bag.
+    #[arg(long)]
+    bag: Option<PathBuf>,
+    #[command(flatten)]
+    topics: TopicArgs,
+    /// A calib.json that replaces the recording's /tf_static and camera_info.
+    #[arg(long)]
+    calib: Option<PathBuf>,
+    /// Ground truth (TUM, KITTI or EuRoC) instead of the recording's.
+    #[arg(long)]
+    gt: Option<PathBuf>,
+    /// A scan takes the nearest image within this many seconds (default 0.05, or the config's).
+    #[arg(long)]
+    image_tolerance: Option<f64>,
     /// The detector checkpoint folder.
     #[arg(long, default_value = "checkpoints/faster-rcnn")]
     checkpoint: PathBuf,
@@ -82,12 +144,18 @@ struct PlanesArgs {
 
 #[derive(clap::Args)]
 struct EvalArgs {
-    /// Ground-truth trajectory.
+    /// Ground-truth trajectory: a TUM, KITTI or EuRoC file, or a recording with --gt-topic.
     #[arg(long)]
     gt: PathBuf,
-    /// Estimated trajectory.
+    /// Estimated trajectory: a file, or a recording with --est-topic.
     #[arg(long)]
     est: PathBuf,
+    /// The pose topic of --gt when it is a recording (as `evo_ape bag`).
+    #[arg(long)]
+    gt_topic: Option<String>,
+    /// The pose topic of --est when it is a recording.
+    #[arg(long)]
+    est_topic: Option<String>,
     /// Alignment of the estimate onto the ground truth before errors are taken.
     #[arg(long, value_enum, default_value_t = Alignment::None)]
     align: Alignment,
@@ -109,6 +177,7 @@ fn main() {
         Command::Eval(args) => eval(&args),
         Command::Planes(args) => planes(&args),
         Command::Run(args) => run(&args),
+        Command::Inspect(args) => inspect(&args),
         Command::Bench(args) => bench(&args),
     };
     if let Err(error) = outcome {
@@ -122,9 +191,34 @@ fn world_beside(gt: &Path) -> Option<PathBuf> {
     candidate.is_file().then_some(candidate)
 }
 
+/// A trajectory file, or a pose topic of a recording.
+fn trajectory_input(path: &Path, topic: Option<&str>, flag: &str) -> Result<datasets::formats::Trajectory> {
+    match topic {
+        Some(topic) => {
+            let recording = datasets::recording::Recording::open(path)?;
+            Ok(datasets::recording::pose_topic::read_pose_topic(&recording, topic)?)
+        }
+        None if path.is_dir() || datasets::recording::Recording::open(path).is_ok() => {
+            anyhow::bail!("{}: a recording; name its pose topic with {flag}", path.display())
+        }
+        None => Ok(read_trajectory(path)?.0),
+    }
+}
+
+fn inspect(args: &InspectArgs) -> Result<()> {
+    let recording = datasets::recording::Recording::open(&args.path)?;
+    print!("{}", recording.info());
+    println!("Roles for `localize run --bag`:");
+    match localize::bag_sequence::find_roles(&recording, &args.topics.options(None)) {
+        Ok((_, notes)) => notes.iter().for_each(|n| println!("  {n}")),
+        Err(e) => println!("  not runnable as it is: {e}"),
+    }
+    Ok(())
+}
+
 fn eval(args: &EvalArgs) -> Result<()> {
-    let (gt, _) = read_trajectory(&args.gt)?;
-    let (est, _) = read_trajectory(&args.est)?;
+    let gt = trajectory_input(&args.gt, args.gt_topic.as_deref(), "--gt-topic")?;
+    let est = trajectory_input(&args.est, args.est_topic.as_deref(), "--est-topic")?;
     if !(args.max_diff >= 0.0 && args.max_diff.is_finite()) {
         anyhow::bail!("--max-diff must be a finite number >= 0, got {}", args.max_diff);
     }
@@ -231,22 +325,48 @@ fn planes(args: &PlanesArgs) -> Result<()> {
 }
 
 fn run(args: &RunArgs) -> Result<()> {
-    let config: LocalizeConfig = match &args.config {
+    let mut config: LocalizeConfig = match &args.config {
         Some(path) => {
             let text = datasets::atomic::read_text(path)?;
             serde_json::from_str(&text).with_context(|| format!("{}: not a localization config", path.display()))?
         }
         None => LocalizeConfig::default(),
     };
-    let sequence = RecordedSequence::open(&args.sequence)?;
+    if let Some(t) = args.image_tolerance {
+        config.sync.image_tolerance_s = t;
+    }
+    config.sync.validate().map_err(|m| anyhow::anyhow!("--image-tolerance: {m}"))?;
+    let mut sequence: Box<dyn SensorSequence> = match (&args.sequence, &args.bag) {
+        (Some(dir), _) => Box::new(RecordedSequence::open_with(dir, &config.sync)?),
+        (None, Some(bag)) => {
+            let sequence = BagSequence::open(bag, &args.topics.options(args.calib.clone()), &config.sync)?;
+            println!("{}: {}", bag.display(), sequence.recording.format);
+            sequence.notes.iter().for_each(|n| println!("  {n}"));
+            Box::new(sequence)
+        }
+        (None, None) => anyhow::bail!("give --sequence DIR or --bag PATH"),
+    };
+    if let Some(gt) = &args.gt {
+        let (mut truth, _) = read_trajectory(gt)?;
+        truth.check_increasing(gt)?;
+        if args.bag.is_some() {
+            // A recording's world is the robot's pose at its first scan.
+            let first = sequence.frame_stamps()[0];
+            truth = localize::sequence::anchored(&truth, first);
+        }
+        sequence = Box::new(WithTruth { inner: sequence, truth });
+    }
     let mut source = match &args.corners_from_labels {
         Some(labels) => CornerSource::labels(labels, args.label_noise_px, args.seed)?,
         None => CornerSource::detector(&args.checkpoint, args.backend.device(), config.fusion.min_score)?,
     };
-    let result = run_sequence(&sequence, &mut source, &config, !std::env::var("CI").is_ok_and(|v| v == "true"))?;
-    let metrics = metrics(&sequence, &result)?;
-    write_outputs(&args.out, &config, &result, sequence.ground_truth.as_ref(), metrics.as_ref())?;
+    let result = run_sequence(&*sequence, &mut source, &config, !std::env::var("CI").is_ok_and(|v| v == "true"))?;
+    let metrics = metrics(&*sequence, &result)?;
+    write_outputs(&args.out, &config, &result, sequence.ground_truth(), metrics.as_ref())?;
     println!("wrote {}", args.out.join("trajectory.txt").display());
+    if sequence.ground_truth().is_some() && metrics.is_none() {
+        eprintln!("warning: the ground truth does not overlap the run's times (within 0.01 s): no metrics.json");
+    }
     if let Some(m) = metrics {
         println!("{} frames, {} fused, {:.1} ms per frame", m.frames, m.fused_frames, m.mean_total_ms);
         println!("{:<22} {:>8} {:>8} {:>8} {:>8}", "", "rmse_x", "rmse_y", "rmse_z", "ate");
@@ -381,8 +501,9 @@ fn bench(args: &BenchArgs) -> Result<()> {
             "sequential_ms": sequential, "total_ms": total,
         }));
     }
+    let decode = bench_decoding(args.frames.max(10));
     if args.json {
-        println!("{}", serde_json::Value::Array(rows));
+        println!("{}", serde_json::json!({"frames": rows, "decode": decode}));
         return Ok(());
     }
     println!(
@@ -408,5 +529,76 @@ fn bench(args: &BenchArgs) -> Result<()> {
         "(points: as scanned; dense-5cm and dense-10cm thin them to 5 and 10 cm voxels before the normals, inside the normals time; k20: 20 neighbours per normal instead of 40)"
     );
     println!("(fusion and pose take well under 1 ms a frame; see frames.csv of a run)");
+    println!(
+        "decoding a recording's messages: PointCloud2 of 10k points {:.2} ms, 640x480 bgr8 Image {:.2} ms, the same as PNG CompressedImage {:.2} ms",
+        decode["cloud_10k_ms"].as_f64().unwrap_or(f64::NAN),
+        decode["image_bgr8_ms"].as_f64().unwrap_or(f64::NAN),
+        decode["image_png_ms"].as_f64().unwrap_or(f64::NAN)
+    );
     Ok(())
+}
+
+/// Mean milliseconds to decode a 10k-point PointCloud2 (x, y, z, intensity,
+/// per-point time) and a 640x480 camera image, raw and PNG, from CDR.
+fn bench_decoding(repeats: usize) -> serde_json::Value {
+    use datasets::recording::messages::{Encoding, decode, image, point_cloud};
+    use datasets::recording::wire::{CdrWriter, Header};
+    let header = Header { stamp_ns: 1_700_000_000_000_000_000, frame_id: "lidar".into() };
+    let n = 10_000u32;
+    let mut w = CdrWriter::new();
+    w.header(&header);
+    w.u32(1);
+    w.u32(n);
+    w.u32(5);
+    for (k, (name, kind)) in [("x", 7u8), ("y", 7), ("z", 7), ("intensity", 7), ("t", 6)].iter().enumerate() {
+        w.string(name);
+        w.u32(4 * k as u32);
+        w.u8(*kind);
+        w.u32(1);
+    }
+    w.u8(0);
+    w.u32(20);
+    w.u32(20 * n);
+    let data: Vec<u8> = (0..n)
+        .flat_map(|i| {
+            let a = i as f32 * 0.01;
+            [5.0 * a.cos(), 5.0 * a.sin(), 0.3, 1.0].into_iter().flat_map(f32::to_le_bytes).chain((i * 10_000).to_le_bytes())
+        })
+        .collect();
+    w.bytes(&data);
+    w.u8(1);
+    let cloud = w.finish();
+    let pixels: Vec<u8> = (0..640 * 480 * 3).map(|i| (i % 251) as u8).collect();
+    let mut w = CdrWriter::new();
+    w.header(&header);
+    w.u32(480);
+    w.u32(640);
+    w.string("bgr8");
+    w.u8(0);
+    w.u32(640 * 3);
+    w.bytes(&pixels);
+    let raw_image = w.finish();
+    let mut png = Vec::new();
+    ::image::RgbImage::from_raw(640, 480, pixels)
+        .expect("sized")
+        .write_to(&mut std::io::Cursor::new(&mut png), ::image::ImageFormat::Png)
+        .expect("in memory");
+    let mut w = CdrWriter::new();
+    w.header(&header);
+    w.string("png");
+    w.bytes(&png);
+    let png_image = w.finish();
+    let time = |f: &dyn Fn()| {
+        f();
+        let start = std::time::Instant::now();
+        for _ in 0..repeats {
+            f();
+        }
+        start.elapsed().as_secs_f64() * 1e3 / repeats as f64
+    };
+    let cloud_ms = time(&|| assert_eq!(decode(Encoding::Cdr, &cloud, point_cloud::point_cloud2).expect("valid").cloud.len(), n as usize));
+    let raw_ms = time(&|| assert_eq!(decode(Encoding::Cdr, &raw_image, image::image).expect("valid").image.width(), 640));
+    let png_ms =
+        time(&|| assert_eq!(decode(Encoding::Cdr, &png_image, image::compressed_image).expect("valid").image.width(), 640));
+    serde_json::json!({"cloud_10k_ms": cloud_ms, "image_bgr8_ms": raw_ms, "image_png_ms": png_ms})
 }

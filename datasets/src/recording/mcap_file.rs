@@ -1,0 +1,85 @@
+//! MCAP files (bare, or the storage of a rosbag2 folder) through the `mcap`
+//! crate, which also undoes the chunks' lz4 and zstd compression.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use crate::error::{DataError, Result};
+use crate::recording::messages::{Encoding, canonical_type};
+use crate::recording::{RawVisitor, TopicInfo};
+
+fn mcap_error(path: &Path, e: mcap::McapError) -> DataError {
+    DataError::invalid(path, format!("not a readable MCAP file: {e}"))
+}
+
+fn encoding(path: &Path, topic: &str, name: &str) -> Result<Encoding> {
+    match name {
+        "cdr" => Ok(Encoding::Cdr),
+        "ros1" => Ok(Encoding::Ros1),
+        other => Err(DataError::invalid(
+            path,
+            format!("topic {topic}: message encoding `{other}` is not a ROS one (cdr or ros1)"),
+        )),
+    }
+}
+
+/// The topics of an MCAP file with their counts and log-time span, from
+/// its summary section when it has one, else by reading every message.
+pub fn topics(path: &Path, bytes: &[u8]) -> Result<Vec<TopicInfo>> {
+    let mut topics: BTreeMap<String, TopicInfo> = BTreeMap::new();
+    let mut add = |topic: &str, type_name: &str, enc: &str, count: u64, first: u64, last: u64| -> Result<()> {
+        let entry = match topics.entry(topic.to_string()) {
+            std::collections::btree_map::Entry::Occupied(e) => e.into_mut(),
+            std::collections::btree_map::Entry::Vacant(v) => v.insert(TopicInfo {
+                name: topic.to_string(),
+                type_name: canonical_type(type_name),
+                encoding: encoding(path, topic, enc)?,
+                count: 0,
+                first_ns: None,
+                last_ns: None,
+            }),
+        };
+        entry.count += count;
+        if count > 0 {
+            entry.first_ns = Some(entry.first_ns.map_or(first as i64, |t| t.min(first as i64)));
+            entry.last_ns = Some(entry.last_ns.map_or(last as i64, |t| t.max(last as i64)));
+        }
+        Ok(())
+    };
+    let summary = mcap::Summary::read(bytes).map_err(|e| mcap_error(path, e))?;
+    if let Some(summary) = summary.filter(|s| s.stats.is_some() && !s.chunk_indexes.is_empty()) {
+        let stats = summary.stats.as_ref().expect("checked");
+        // The summary has no per-channel span; the chunks that hold a
+        // channel's messages bound it (to a chunk's length, a fraction of a second).
+        let mut spans: BTreeMap<u16, (u64, u64)> = BTreeMap::new();
+        for chunk in &summary.chunk_indexes {
+            for id in chunk.message_index_offsets.keys() {
+                let span = spans.entry(*id).or_insert((u64::MAX, 0));
+                span.0 = span.0.min(chunk.message_start_time);
+                span.1 = span.1.max(chunk.message_end_time);
+            }
+        }
+        for (id, channel) in &summary.channels {
+            let count = stats.channel_message_counts.get(id).copied().unwrap_or(0);
+            let schema = channel.schema.as_ref().map_or("", |s| s.name.as_str());
+            let (first, last) = spans.get(id).copied().unwrap_or((stats.message_start_time, stats.message_end_time));
+            add(&channel.topic, schema, &channel.message_encoding, count, first, last)?;
+        }
+        return Ok(topics.into_values().collect());
+    }
+    for message in mcap::MessageStream::new(bytes).map_err(|e| mcap_error(path, e))? {
+        let m = message.map_err(|e| mcap_error(path, e))?;
+        let schema = m.channel.schema.as_ref().map_or("", |s| s.name.as_str());
+        add(&m.channel.topic, schema, &m.channel.message_encoding, 1, m.log_time, m.log_time)?;
+    }
+    Ok(topics.into_values().collect())
+}
+
+/// Visits every message in file order.
+pub fn visit(path: &Path, bytes: &[u8], visit: &mut RawVisitor<'_>) -> Result<()> {
+    for message in mcap::MessageStream::new(bytes).map_err(|e| mcap_error(path, e))? {
+        let m = message.map_err(|e| mcap_error(path, e))?;
+        visit(&m.channel.topic, m.log_time as i64, &m.data)?;
+    }
+    Ok(())
+}
