@@ -46,8 +46,10 @@ fn bad_flags_and_settings_are_named() {
 fn a_tiny_run_writes_the_documented_layout() {
     let dir = tempfile::tempdir().unwrap();
     let o = dir.path().to_str().unwrap();
+    let bag = dir.path().join("sequence.mcap");
     let (ok, err) = datagen(&[
         "--out", o, "--images", "3", "--train", "2", "--frames", "2", "--speed", "0.5", "--rate", "2", "--seed", "11",
+        "--bag", bag.to_str().unwrap(),
     ]);
     assert!(ok, "{err}");
     for rel in [
@@ -56,8 +58,8 @@ fn a_tiny_run_writes_the_documented_layout() {
         "detection/test.json",
         "detection/images/000002.png",
         "detection/canny/000002.png",
-        "sequence/rgb/0.500000.png",
-        "sequence/cloud/0.500000.pcd",
+        "sequence/rgb/0000000000.500000.png",
+        "sequence/cloud/0000000000.500000.pcd",
         "sequence/odom.csv",
         "sequence/imu.csv",
         "sequence/groundtruth.txt",
@@ -72,4 +74,10 @@ fn a_tiny_run_writes_the_documented_layout() {
         serde_json::from_str(&std::fs::read_to_string(dir.path().join("datagen.json")).unwrap()).unwrap();
     assert_eq!(settings["seed"], 11);
     assert_eq!(settings["sequence"]["rate_hz"], 2.0);
+    // The same sequence as a ROS 2 recording.
+    let recording = datasets::recording::Recording::open(&bag).unwrap();
+    let count = |topic: &str| recording.topics[recording.topic(topic).unwrap()].count;
+    assert_eq!([count("/points"), count("/camera/image_raw/compressed"), count("/ground_truth"), count("/tf_static")], [2, 2, 2, 1]);
+    let imu_rows = std::fs::read_to_string(dir.path().join("sequence/imu.csv")).unwrap().lines().count() as u64 - 1;
+    assert_eq!(count("/imu"), imu_rows);
 }

@@ -93,3 +93,39 @@ pub fn compressed_image(r: &mut dyn WireReader<'_>) -> WireResult<ImageMessage> 
     let image = reader.decode().map_err(|e| wire_error(format!("compressed image (format `{format}`): {e}")))?;
     Ok(ImageMessage { header, image })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::recording::messages::{Encoding, decode};
+    use crate::recording::wire::CdrWriter;
+
+    /// A 2x1 image with `bytes` per row and a 2-byte row padding.
+    fn message(encoding: &str, big_endian: bool, row: &[u8]) -> Vec<u8> {
+        let mut w = CdrWriter::new();
+        w.header(&Header { stamp_ns: 1, frame_id: "cam".into() });
+        w.u32(1);
+        w.u32(2);
+        w.string(encoding);
+        w.u8(big_endian as u8);
+        w.u32(row.len() as u32 + 2);
+        let mut data = row.to_vec();
+        data.extend_from_slice(&[0xEE, 0xEE]);
+        w.bytes(&data);
+        w.finish()
+    }
+
+    #[test]
+    fn every_listed_encoding_decodes_to_its_pixels() {
+        let im = |enc: &str, be: bool, row: &[u8]| decode(Encoding::Cdr, &message(enc, be, row), image).unwrap().image;
+        assert_eq!(im("mono16", false, &[0x34, 0x12, 0xff, 0x00]).as_luma16().unwrap().as_raw(), &[0x1234, 0x00ff]);
+        assert_eq!(im("mono16", true, &[0x12, 0x34, 0x00, 0xff]).as_luma16().unwrap().as_raw(), &[0x1234, 0x00ff]);
+        assert_eq!(im("rgba8", false, &[1, 2, 3, 4, 5, 6, 7, 8]).as_rgba8().unwrap().as_raw(), &[1, 2, 3, 4, 5, 6, 7, 8]);
+        assert_eq!(im("bgra8", false, &[1, 2, 3, 4, 5, 6, 7, 8]).as_rgba8().unwrap().as_raw(), &[3, 2, 1, 4, 7, 6, 5, 8]);
+        assert_eq!(im("rgb8", false, &[1, 2, 3, 4, 5, 6]).as_rgb8().unwrap().as_raw(), &[1, 2, 3, 4, 5, 6]);
+        assert_eq!(im("bgr8", false, &[1, 2, 3, 4, 5, 6]).as_rgb8().unwrap().as_raw(), &[3, 2, 1, 6, 5, 4]);
+        // Data shorter than height x step (less the last row's padding) is refused.
+        let short = decode(Encoding::Cdr, &message("rgb8", false, &[1, 2, 3]), image).unwrap_err();
+        assert!(short.0.contains("step"), "{short}");
+    }
+}
