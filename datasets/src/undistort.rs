@@ -24,10 +24,7 @@ pub fn distort(d: &[f64], x: f64, y: f64) -> (f64, f64) {
     let (k1, k2, p1, p2, k3, k4, k5, k6) = (k(0), k(1), k(2), k(3), k(4), k(5), k(6), k(7));
     let r2 = x * x + y * y;
     let radial = (1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1.0 + r2 * (k4 + r2 * (k5 + r2 * k6)));
-    (
-        x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x),
-        y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y,
-    )
+    (x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x), y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y)
 }
 
 impl Undistorter {
@@ -113,7 +110,10 @@ mod tests {
             n += w;
         }
         let centroid = (sx / n, sy / n);
-        assert!((centroid.0 - pinhole_at.0).abs() < 0.5 && (centroid.1 - pinhole_at.1).abs() < 0.5, "{centroid:?} vs {pinhole_at:?}");
+        assert!(
+            (centroid.0 - pinhole_at.0).abs() < 0.5 && (centroid.1 - pinhole_at.1).abs() < 0.5,
+            "{centroid:?} vs {pinhole_at:?}"
+        );
         assert!(Undistorter::new(&camera, "equidistant", &[0.0; 4]).unwrap_err().contains("not supported"));
         assert!(u.apply(&DynamicImage::new_rgb8(10, 10)).unwrap_err().contains("10x10"));
     }

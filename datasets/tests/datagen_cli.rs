@@ -48,8 +48,22 @@ fn a_tiny_run_writes_the_documented_layout() {
     let o = dir.path().to_str().unwrap();
     let bag = dir.path().join("sequence.mcap");
     let (ok, err) = datagen(&[
-        "--out", o, "--images", "3", "--train", "2", "--frames", "2", "--speed", "0.5", "--rate", "2", "--seed", "11",
-        "--bag", bag.to_str().unwrap(),
+        "--out",
+        o,
+        "--images",
+        "3",
+        "--train",
+        "2",
+        "--frames",
+        "2",
+        "--speed",
+        "0.5",
+        "--rate",
+        "2",
+        "--seed",
+        "11",
+        "--bag",
+        bag.to_str().unwrap(),
     ]);
     assert!(ok, "{err}");
     for rel in [
@@ -77,7 +91,10 @@ fn a_tiny_run_writes_the_documented_layout() {
     // The same sequence as a ROS 2 recording.
     let recording = datasets::recording::Recording::open(&bag).unwrap();
     let count = |topic: &str| recording.topics[recording.topic(topic).unwrap()].count;
-    assert_eq!([count("/points"), count("/camera/image_raw/compressed"), count("/ground_truth"), count("/tf_static")], [2, 2, 2, 1]);
+    assert_eq!(
+        [count("/points"), count("/camera/image_raw/compressed"), count("/ground_truth"), count("/tf_static")],
+        [2, 2, 2, 1]
+    );
     let imu_rows = std::fs::read_to_string(dir.path().join("sequence/imu.csv")).unwrap().lines().count() as u64 - 1;
     assert_eq!(count("/imu"), imu_rows);
 }

@@ -27,7 +27,11 @@ fn expected() -> Value {
 
 fn real(rel: &str) -> PathBuf {
     let path = manifest_dir().join("../../shared/data/ros_recordings").join(rel);
-    assert!(path.exists(), "real-data file {} is missing: these tests need the shared data folder beside the project", path.display());
+    assert!(
+        path.exists(),
+        "real-data file {} is missing: these tests need the shared data folder beside the project",
+        path.display()
+    );
     path
 }
 
@@ -55,11 +59,12 @@ fn decode_all<T>(
 ) -> Vec<T> {
     let k = recording.topic(topic).unwrap();
     let mut out = Vec::new();
-    recording.read(&[k], &mut |m| {
-        out.push(recording.decode(&m, &decode)?);
-        Ok(())
-    })
-    .unwrap();
+    recording
+        .read(&[k], &mut |m| {
+            out.push(recording.decode(&m, &decode)?);
+            Ok(())
+        })
+        .unwrap();
     out
 }
 
@@ -90,10 +95,11 @@ fn every_fixture_lists_its_topics_with_types_counts_and_encoding() {
         let (first, last) = r.span_ns().unwrap();
         assert_eq!(first, t0, "{name}: the first message is /tf_static at T0");
         assert!(last > t0 + 900_000_000 && last < t0 + 1_000_000_000, "{name}: {last}");
-        let imu = &r.topics[r.topic("/imu").unwrap()];
-        let rate = imu.rate_hz().unwrap();
-        // Chunk-bounded spans (MCAP, ROS 1 indexes) may stretch a topic's span a little.
-        assert!((rate - 200.0).abs() < 20.0, "{name}: IMU at {rate} Hz");
+        // Rates over each topic's own span, from the message indexes where a file has them.
+        for (topic, hz) in [("/imu", 200.0), ("/points", 10.0), ("/camera/camera_info", 30.0)] {
+            let rate = r.topics[r.topic(topic).unwrap()].rate_hz().unwrap();
+            assert!((rate - hz).abs() < 1e-3 * hz, "{name}: {topic} at {rate} Hz");
+        }
         assert!(r.info().contains("/points") && r.info().contains("sensor_msgs/msg/PointCloud2"));
     }
 }
@@ -119,9 +125,18 @@ fn point_clouds_decode_value_for_value_in_every_layout_and_container() {
                 let xyz = p["xyz"].as_array().unwrap();
                 let got = c.cloud.points[k];
                 // float32 storage, or float64 read into float32: both round the same way.
-                assert_eq!([got.x as f64, got.y as f64, got.z as f64], [f(&xyz[0]), f(&xyz[1]), f(&xyz[2])], "{name} point {k}");
+                assert_eq!(
+                    [got.x as f64, got.y as f64, got.z as f64],
+                    [f(&xyz[0]), f(&xyz[1]), f(&xyz[2])],
+                    "{name} point {k}"
+                );
                 assert_eq!(intensity[k] as f64, f(&p["intensity"]), "{name} point {k}");
-                assert!((times[k] as f64 - f(&p["time"])).abs() < 1e-7, "{name} point {k}: {} vs {}", times[k], p["time"]);
+                assert!(
+                    (times[k] as f64 - f(&p["time"])).abs() < 1e-7,
+                    "{name} point {k}: {} vs {}",
+                    times[k],
+                    p["time"]
+                );
             }
         }
     }
@@ -135,7 +150,13 @@ fn images_decode_to_the_pixels_written() {
             .as_array()
             .unwrap()
             .iter()
-            .map(|p| p.as_array().unwrap().iter().map(|p| p.as_array().unwrap().iter().map(|v| v.as_u64().unwrap() as u8).collect()).collect())
+            .map(|p| {
+                p.as_array()
+                    .unwrap()
+                    .iter()
+                    .map(|p| p.as_array().unwrap().iter().map(|v| v.as_u64().unwrap() as u8).collect())
+                    .collect()
+            })
             .collect()
     };
     let pixels = rows(&e["images"].as_array().unwrap().iter().map(|i| i["pixels"].clone()).collect());
@@ -162,7 +183,11 @@ fn images_decode_to_the_pixels_written() {
                     // upsampling differently: close to libjpeg, not equal.
                     let rgb = d.image.to_rgb8();
                     let reference = &libjpeg[k];
-                    let err: f64 = rgb.pixels().zip(reference).map(|(p, w)| (0..3).map(|c| (p[c] as f64 - w[c] as f64).abs()).sum::<f64>()).sum::<f64>()
+                    let err: f64 = rgb
+                        .pixels()
+                        .zip(reference)
+                        .map(|(p, w)| (0..3).map(|c| (p[c] as f64 - w[c] as f64).abs()).sum::<f64>())
+                        .sum::<f64>()
                         / (3.0 * reference.len() as f64);
                     assert!(err < 3.0, "{name} image {k}: mean difference from libjpeg {err}");
                 }
@@ -217,7 +242,10 @@ fn imu_odometry_truth_tf_and_camera_info_decode_exactly() {
         }
         let info = decode_all(&r, "/camera/camera_info", camera_info::camera_info);
         let k: Vec<f64> = e["camera"]["k"].as_array().unwrap().iter().map(f).collect();
-        assert!(info.iter().all(|i| i.k.to_vec() == k && i.width == 32 && i.height == 24 && i.is_undistorted()), "{name}");
+        assert!(
+            info.iter().all(|i| i.k.to_vec() == k && i.width == 32 && i.height == 24 && i.is_undistorted()),
+            "{name}"
+        );
         assert_eq!(info[0].distortion_model, "plumb_bob");
         assert_eq!(info[0].raw_camera().fx, 40.0);
     }
@@ -346,7 +374,12 @@ fn a_declared_size_beyond_the_message_is_an_error_not_an_allocation() {
 fn assert_same_poses(ours: &Trajectory, evo: &Trajectory, what: &str) {
     assert_eq!(ours.len(), evo.len(), "{what}: pose count");
     for k in 0..ours.len() {
-        assert!((ours.stamps[k] - evo.stamps[k]).abs() < 1e-6, "{what} pose {k}: stamp {} vs {}", ours.stamps[k], evo.stamps[k]);
+        assert!(
+            (ours.stamps[k] - evo.stamps[k]).abs() < 1e-6,
+            "{what} pose {k}: stamp {} vs {}",
+            ours.stamps[k],
+            evo.stamps[k]
+        );
         let d = (ours.poses[k].translation.vector - evo.poses[k].translation.vector).norm();
         assert!(d < 1e-9, "{what} pose {k}: position off by {d}");
         let angle = ours.poses[k].rotation.angle_to(&evo.poses[k].rotation);

@@ -73,7 +73,10 @@ fn pick(
         if !recording.topics[k].kind().is_some_and(|m| kinds.contains(&m)) {
             return Err(bag_error(
                 recording,
-                format!("{flag} {name}: the topic is {}, the {role} must be {type_list}", recording.topics[k].type_name),
+                format!(
+                    "{flag} {name}: the topic is {}, the {role} must be {type_list}",
+                    recording.topics[k].type_name
+                ),
             ));
         }
         return Ok(Some(k));
@@ -82,9 +85,14 @@ fn pick(
         [] => Ok(None),
         [k] => Ok(Some(*k)),
         several => {
-            let names: Vec<String> =
-                several.iter().map(|&k| format!("{} ({})", recording.topics[k].name, recording.topics[k].type_name)).collect();
-            Err(bag_error(recording, format!("several topics could be the {role}: {}; choose one with {flag}", names.join(", "))))
+            let names: Vec<String> = several
+                .iter()
+                .map(|&k| format!("{} ({})", recording.topics[k].name, recording.topics[k].type_name))
+                .collect();
+            Err(bag_error(
+                recording,
+                format!("several topics could be the {role}: {}; choose one with {flag}", names.join(", ")),
+            ))
         }
     }
 }
@@ -96,8 +104,15 @@ pub fn find_roles(recording: &Recording, options: &BagOptions) -> Result<(Roles,
     let non_empty = |kinds: &[MessageKind]| -> Vec<usize> {
         kinds_of(recording, kinds).into_iter().filter(|&k| recording.topics[k].count > 0).collect()
     };
-    let lidar = pick(recording, "LIDAR", "--lidar-topic", options.lidar_topic.as_deref(), &[PointCloud2], non_empty(&[PointCloud2]))?
-        .ok_or_else(|| bag_error(recording, "no sensor_msgs/msg/PointCloud2 topic: localization needs a LIDAR"))?;
+    let lidar = pick(
+        recording,
+        "LIDAR",
+        "--lidar-topic",
+        options.lidar_topic.as_deref(),
+        &[PointCloud2],
+        non_empty(&[PointCloud2]),
+    )?
+    .ok_or_else(|| bag_error(recording, "no sensor_msgs/msg/PointCloud2 topic: localization needs a LIDAR"))?;
     let image = pick(
         recording,
         "camera",
@@ -112,11 +127,8 @@ pub fn find_roles(recording: &Recording, options: &BagOptions) -> Result<(Roles,
         Some(i) if infos.len() > 1 => {
             let ns = |name: &str| name.rsplit_once('/').map_or(String::new(), |(a, _)| a.to_string());
             let image_ns = ns(&recording.topics[i].name);
-            let matching: Vec<usize> = infos
-                .iter()
-                .copied()
-                .filter(|&k| image_ns.starts_with(&ns(&recording.topics[k].name)))
-                .collect();
+            let matching: Vec<usize> =
+                infos.iter().copied().filter(|&k| image_ns.starts_with(&ns(&recording.topics[k].name))).collect();
             if matching.is_empty() { infos.clone() } else { matching }
         }
         _ => infos.clone(),
@@ -131,10 +143,17 @@ pub fn find_roles(recording: &Recording, options: &BagOptions) -> Result<(Roles,
     )?;
     let imu = pick(recording, "IMU", "--imu-topic", options.imu_topic.as_deref(), &[Imu], non_empty(&[Imu]))?
         .ok_or_else(|| bag_error(recording, "no sensor_msgs/msg/Imu topic: the filter needs an IMU (--imu-topic)"))?;
-    let odometry = pick(recording, "odometry", "--odom-topic", options.odom_topic.as_deref(), &[Odometry], non_empty(&[Odometry]))?
-        .ok_or_else(|| {
-            bag_error(recording, "no nav_msgs/msg/Odometry topic: the filter needs wheel odometry (--odom-topic)")
-        })?;
+    let odometry = pick(
+        recording,
+        "odometry",
+        "--odom-topic",
+        options.odom_topic.as_deref(),
+        &[Odometry],
+        non_empty(&[Odometry]),
+    )?
+    .ok_or_else(|| {
+        bag_error(recording, "no nav_msgs/msg/Odometry topic: the filter needs wheel odometry (--odom-topic)")
+    })?;
     // Ground truth is never guessed among odometry topics: by type, only
     // PoseStamped ones.
     let ground_truth = pick(
@@ -229,14 +248,18 @@ impl BagSequence {
             return Err(bag_error(&recording, format!("topic {} has no messages", recording.topics[roles.lidar].name)));
         }
         if pass.dropped_duplicates > 0 {
-            notes.push(format!("skipped {} messages that repeat their topic's previous stamp", pass.dropped_duplicates));
+            notes
+                .push(format!("skipped {} messages that repeat their topic's previous stamp", pass.dropped_duplicates));
         }
         let base = options.base_frame.clone().unwrap_or_else(|| "base_link".to_string());
         let (calibration, undistort) = Self::calibration(&recording, &roles, &pass, &base, options, &mut notes)?;
         let robot_from_imu = match &pass.imu_frame {
             Some(frame) if !frame.is_empty() && (options.calib.is_none() || !pass.tf.is_empty()) => {
                 pass.tf.lookup(&base, frame, false).or_else(|| pass.tf.lookup(&base, frame, true)).ok_or_else(|| {
-                    bag_error(&recording, format!("no transform from the IMU frame `{frame}` to `{base}` in /tf_static or /tf"))
+                    bag_error(
+                        &recording,
+                        format!("no transform from the IMU frame `{frame}` to `{base}` in /tf_static or /tf"),
+                    )
                 })?
             }
             _ => Pose3::identity(),
@@ -291,11 +314,12 @@ impl BagSequence {
 
     fn first_pass(recording: &Recording, roles: &Roles) -> Result<FirstPass> {
         let mut pass = FirstPass::default();
-        let wanted: Vec<usize> = [Some(roles.lidar), roles.image, roles.camera_info, Some(roles.imu), Some(roles.odometry)]
-            .into_iter()
-            .chain([roles.ground_truth, roles.tf_static, roles.tf])
-            .flatten()
-            .collect();
+        let wanted: Vec<usize> =
+            [Some(roles.lidar), roles.image, roles.camera_info, Some(roles.imu), Some(roles.odometry)]
+                .into_iter()
+                .chain([roles.ground_truth, roles.tf_static, roles.tf])
+                .flatten()
+                .collect();
         let truth_kind = roles.ground_truth.and_then(|k| recording.topics[k].kind());
         recording.read(&wanted, &mut |m| {
             let header = || recording.decode(&m, |r| r.header());
@@ -370,7 +394,10 @@ impl BagSequence {
         let frames = || pass.tf.frames().into_iter().collect::<Vec<_>>().join(", ");
         let lookup = |target: &str, source: &str, what: &str| -> Result<Pose3> {
             pass.tf.lookup(target, source, false).or_else(|| pass.tf.lookup(target, source, true)).ok_or_else(|| {
-                bag_error(recording, format!("no transform from {what} `{source}` to `{target}` (frames: {})", frames()))
+                bag_error(
+                    recording,
+                    format!("no transform from {what} `{source}` to `{target}` (frames: {})", frames()),
+                )
             })
         };
         let lidar_frame = pass.lidar_frame.clone().unwrap_or_default();
@@ -379,7 +406,10 @@ impl BagSequence {
             None => (PinholeCamera::kinect(), Pose3::identity(), None),
             Some(image_topic) => {
                 let info = pass.camera_info.as_ref().ok_or_else(|| {
-                    bag_error(recording, "the camera has no sensor_msgs/msg/CameraInfo topic: pass --calib with its intrinsics")
+                    bag_error(
+                        recording,
+                        "the camera has no sensor_msgs/msg/CameraInfo topic: pass --calib with its intrinsics",
+                    )
                 })?;
                 let frame = pass.image_frame.clone().unwrap_or_else(|| info.header.frame_id.clone());
                 let camera_from_lidar = lookup(&frame, &lidar_frame, "the LIDAR frame")?;
@@ -399,7 +429,10 @@ impl BagSequence {
                 (camera, camera_from_lidar, undistort)
             }
         };
-        notes.push(format!("frames       robot `{base}`, LIDAR `{lidar_frame}`, camera `{}`", pass.image_frame.as_deref().unwrap_or("-")));
+        notes.push(format!(
+            "frames       robot `{base}`, LIDAR `{lidar_frame}`, camera `{}`",
+            pass.image_frame.as_deref().unwrap_or("-")
+        ));
         Ok((Calibration { camera, camera_from_lidar, robot_from_lidar }, undistort))
     }
 
@@ -412,7 +445,9 @@ impl BagSequence {
         .map_err(|e| e.to_string())?;
         let camera = &self.calibration.camera;
         let im = match &self.undistort {
-            Some(u) => u.apply(&decoded.image).map_err(|e| format!("topic {} message {}: {e}", self.recording.topics[m.topic].name, m.index))?,
+            Some(u) => u
+                .apply(&decoded.image)
+                .map_err(|e| format!("topic {} message {}: {e}", self.recording.topics[m.topic].name, m.index))?,
             None => decoded.image,
         };
         if im.width() != camera.width || im.height() != camera.height {
@@ -461,9 +496,14 @@ impl SensorSequence for BagSequence {
         }
         let image_slot: HashMap<u64, usize> = self.images.iter().enumerate().map(|(j, s)| (s.index, j)).collect();
         let mut held: HashMap<usize, std::result::Result<::image::DynamicImage, String>> = HashMap::new();
-        let mut pending: VecDeque<(usize, std::result::Result<datasets::formats::PointCloud, String>)> = VecDeque::new();
+        let mut pending: VecDeque<(usize, std::result::Result<datasets::formats::PointCloud, String>)> =
+            VecDeque::new();
         let wanted: Vec<usize> = [Some(self.roles.lidar), self.roles.image].into_iter().flatten().collect();
-        let mut flush = |pending: &mut VecDeque<_>, held: &mut HashMap<usize, _>, image_users: &mut HashMap<u64, usize>, all: bool| -> Result<()> {
+        let mut flush = |pending: &mut VecDeque<_>,
+                         held: &mut HashMap<usize, _>,
+                         image_users: &mut HashMap<u64, usize>,
+                         all: bool|
+         -> Result<()> {
             while let Some((k, _)) = pending.front() {
                 let k: usize = *k;
                 let image = match self.pairs[k] {
@@ -477,7 +517,10 @@ impl SensorSequence for BagSequence {
                                 image: im.clone(),
                             })
                         }
-                        None if all => Err(format!("image message {} of the scan at {:.6} never came", self.images[j].index, self.scans[k].stamp)),
+                        None if all => Err(format!(
+                            "image message {} of the scan at {:.6} never came",
+                            self.images[j].index, self.scans[k].stamp
+                        )),
                         None => return Ok(()),
                     },
                 };
@@ -498,11 +541,8 @@ impl SensorSequence for BagSequence {
         let outcome = self.recording.read(&wanted, &mut |m| {
             if m.topic == self.roles.lidar {
                 let Some(&k) = scan_of.get(&m.index) else { return Ok(()) };
-                let cloud = self
-                    .recording
-                    .decode(&m, point_cloud::point_cloud2)
-                    .map(|c| c.cloud)
-                    .map_err(|e| e.to_string());
+                let cloud =
+                    self.recording.decode(&m, point_cloud::point_cloud2).map(|c| c.cloud).map_err(|e| e.to_string());
                 pending.push_back((k, cloud));
             } else if let Some(&j) = image_slot.get(&m.index)
                 && image_users.get(&m.index).is_some_and(|&n| n > 0)

@@ -2,8 +2,8 @@
 //! detector cast into them, corner landmarks, the pose that aligns them with
 //! an odometry/IMU prior, and trajectory metrics.
 
-pub mod config;
 pub mod bag_sequence;
+pub mod config;
 pub mod corner_source;
 pub mod corners;
 pub mod ekf;

@@ -55,7 +55,8 @@ impl FrameMotion {
             let lo = point_times.iter().copied().fold(f32::INFINITY, f32::min) as f64;
             let hi = point_times.iter().copied().fold(f32::NEG_INFINITY, f32::max) as f64;
             if lo.is_finite() && hi.is_finite() && hi > lo {
-                times.extend((0..SWEEP_SAMPLES).map(|k| stamp + lo + (hi - lo) * k as f64 / (SWEEP_SAMPLES - 1) as f64));
+                times
+                    .extend((0..SWEEP_SAMPLES).map(|k| stamp + lo + (hi - lo) * k as f64 / (SWEEP_SAMPLES - 1) as f64));
             }
         }
         times
@@ -118,9 +119,18 @@ mod tests {
     /// A robot driving straight along x at 1 m/s, level.
     fn logs() -> (Vec<OdometrySample>, Vec<ImuSample>) {
         let odometry = (0..100)
-            .map(|k| OdometrySample { timestamp: k as f64 * 0.02, x: k as f64 * 0.02, y: 0.0, yaw: 0.0, v: 1.0, omega: 0.0 })
+            .map(|k| OdometrySample {
+                timestamp: k as f64 * 0.02,
+                x: k as f64 * 0.02,
+                y: 0.0,
+                yaw: 0.0,
+                v: 1.0,
+                omega: 0.0,
+            })
             .collect();
-        let imu = (0..400).map(|k| ImuSample { timestamp: k as f64 * 0.005, accel: [0.0, 0.0, 9.80665], gyro: [0.0; 3] }).collect();
+        let imu = (0..400)
+            .map(|k| ImuSample { timestamp: k as f64 * 0.005, accel: [0.0, 0.0, 9.80665], gyro: [0.0; 3] })
+            .collect();
         (odometry, imu)
     }
 
@@ -153,7 +163,8 @@ mod tests {
         let mut cloud = PointCloud::new(points, None);
         cloud.times = Some(times.clone());
         let stamp = 1.0;
-        let motion = FrameMotion::sample(&mut ekf, &mut replay, stamp, &FrameMotion::times_for(stamp, None, Some(&cloud)));
+        let motion =
+            FrameMotion::sample(&mut ekf, &mut replay, stamp, &FrameMotion::times_for(stamp, None, Some(&cloud)));
         motion.deskew(&mut cloud, &robot_from_lidar);
         for (p, dt) in cloud.points.iter().zip(&times) {
             assert!((p.x - 5.0).abs() < 2e-4, "point at {dt}: x {}", p.x);

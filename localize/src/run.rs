@@ -16,8 +16,8 @@ use crate::ekf::{Ekf, SensorReplay};
 use crate::error::Result;
 use crate::eval::{Alignment, ErrorSummary, compare};
 use crate::levels::{LevelMap, SegmentMetrics};
-use crate::pipeline::{FrameReport, Localizer};
 use crate::motion::FrameMotion;
+use crate::pipeline::{FrameReport, Localizer};
 use crate::sequence::{FrameInput, SensorSequence};
 
 pub struct RunResult {
@@ -67,6 +67,8 @@ pub fn run_sequence(
     let lidar_from_robot = calibration.robot_from_lidar.inverse();
     sequence.for_each_frame(&mut |frame: FrameInput| {
         let FrameInput { stamp, mut cloud, image } = frame;
+        // A frame's time counts from here: filter, deskewing, geometry and detector.
+        let started = Instant::now();
         let image_stamp = image.as_ref().ok().map(|i| i.stamp);
         // The filter moves to the scan's time, and says where the robot was
         // when the image was taken and while the sweep went round.
@@ -88,7 +90,6 @@ pub fn run_sequence(
         let image = image.and_then(|i| i.image);
         // The cloud's geometry and the detector are independent until fusion:
         // run them side by side, so each fills the cores the other leaves idle.
-        let started = Instant::now();
         let (geometry, (pixels, detect_ms)) = rayon::join(
             || localizer.frame_geometry(cloud),
             || match (&image, &mut *source) {

@@ -12,11 +12,11 @@
 
 use std::path::{Path, PathBuf};
 
-use datasets::math::Pose3;
 use datasets::formats::{
     Calibration, ImuSample, NonFinite, OdometrySample, PointCloud, Trajectory, read_calibration, read_cloud, read_imu,
     read_odometry, read_tum,
 };
+use datasets::math::Pose3;
 use image::DynamicImage;
 use serde::{Deserialize, Serialize};
 

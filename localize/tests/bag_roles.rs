@@ -16,7 +16,8 @@ fn two_lidars(path: &std::path::Path) {
     let cloud = PointCloud::new(vec![nalgebra::Point3::new(1.0, 2.0, 3.0)], None);
     for (k, topic) in ["/velodyne_points", "/ouster/points"].iter().enumerate() {
         let channel = writer.add_channel(schema, topic, "cdr", &BTreeMap::new()).unwrap();
-        let header = mcap::records::MessageHeader { channel_id: channel, sequence: k as u32, log_time: 5, publish_time: 5 };
+        let header =
+            mcap::records::MessageHeader { channel_id: channel, sequence: k as u32, log_time: 5, publish_time: 5 };
         writer.write_to_known_channel(&header, &point_cloud2(5, "lidar", &cloud)).unwrap();
     }
     writer.finish().unwrap();

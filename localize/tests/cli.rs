@@ -71,7 +71,8 @@ fn inspect_prints_topics_counts_rates_and_roles() {
     let out = localize(&["inspect", &recording("ros1_lz4.bag")]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let text = String::from_utf8_lossy(&out.stdout);
-    for want in ["ROS 1 bag", "Messages:          331", "/imu", "sensor_msgs/msg/Imu", "200 msgs", "ros1", "Duration:"] {
+    for want in ["ROS 1 bag", "Messages:          331", "/imu", "sensor_msgs/msg/Imu", "200 msgs", "ros1", "Duration:"]
+    {
         assert!(text.contains(want), "no `{want}` in\n{text}");
     }
     assert!(text.contains("lidar        /points (sensor_msgs/msg/PointCloud2, 10 messages)"), "{text}");
@@ -81,7 +82,12 @@ fn inspect_prints_topics_counts_rates_and_roles() {
     let out = localize(&["inspect", &shared("ros_recordings/nav2_turtlebot.mcap")]);
     assert!(out.status.success());
     let text = String::from_utf8_lossy(&out.stdout);
-    assert!(text.contains("/amcl_pose") && text.contains("2639 msgs") && text.contains("no sensor_msgs/msg/PointCloud2 topic"), "{text}");
+    assert!(
+        text.contains("/amcl_pose")
+            && text.contains("2639 msgs")
+            && text.contains("no sensor_msgs/msg/PointCloud2 topic"),
+        "{text}"
+    );
 }
 
 #[test]
@@ -154,10 +160,23 @@ fn eval_takes_a_pose_topic_of_a_bag_as_evo_does() {
     let bag = shared("ros_recordings/ROS_example.bag");
     let gt_tum = shared("ros_recordings/evo_reference/groundtruth.tum");
     let est_tum = shared("ros_recordings/evo_reference/S-PTAM.tum");
-    let from_files = localize(&["eval", "--gt", &gt_tum, "--est", &est_tum, "--align", "se3", "--max-diff", "0.05", "--json"]);
+    let from_files =
+        localize(&["eval", "--gt", &gt_tum, "--est", &est_tum, "--align", "se3", "--max-diff", "0.05", "--json"]);
     let from_bag = localize(&[
-        "eval", "--gt", &bag, "--gt-topic", "groundtruth", "--est", &bag, "--est-topic", "S-PTAM", "--align", "se3",
-        "--max-diff", "0.05", "--json",
+        "eval",
+        "--gt",
+        &bag,
+        "--gt-topic",
+        "groundtruth",
+        "--est",
+        &bag,
+        "--est-topic",
+        "S-PTAM",
+        "--align",
+        "se3",
+        "--max-diff",
+        "0.05",
+        "--json",
     ]);
     assert!(from_bag.status.success(), "{}", String::from_utf8_lossy(&from_bag.stderr));
     let a: serde_json::Value = serde_json::from_slice(&from_files.stdout).unwrap();

@@ -51,7 +51,8 @@ fn a_bag_of_a_generated_sequence_localizes_as_its_folder_does() {
 
     let labels = dir.path().join("sequence/labels.json");
     let config = LocalizeConfig::default();
-    let from_folder = run_sequence(&folder, &mut CornerSource::labels(&labels, 1.0, 3).unwrap(), &config, false).unwrap();
+    let from_folder =
+        run_sequence(&folder, &mut CornerSource::labels(&labels, 1.0, 3).unwrap(), &config, false).unwrap();
     let from_bag = run_sequence(&bag, &mut CornerSource::labels(&labels, 1.0, 3).unwrap(), &config, false).unwrap();
     let statuses = |r: &localize::run::RunResult| r.frames.iter().map(|f| f.status.label()).collect::<Vec<_>>();
     assert_eq!(statuses(&from_folder), statuses(&from_bag));
@@ -88,13 +89,20 @@ fn recordings_of_other_tools_find_their_roles_calibration_and_images() {
         let gyro = &e["imu"][0]["gyro"];
         let g = |k: usize| gyro[k].as_f64().unwrap();
         let got = bag.imu()[0].gyro;
-        assert!((got[0] + g(1)).abs() < 1e-12 && (got[1] - g(0)).abs() < 1e-12 && (got[2] - g(2)).abs() < 1e-12, "{name}");
+        assert!(
+            (got[0] + g(1)).abs() < 1e-12 && (got[1] - g(0)).abs() < 1e-12 && (got[2] - g(2)).abs() < 1e-12,
+            "{name}"
+        );
         // 30 Hz camera 13 ms after each scan: every scan has an image within 50 ms.
         assert!(bag.notes.iter().any(|n| n.contains("10 of 10 scans have an image")), "{name}: {:?}", bag.notes);
         let mut frames = Vec::new();
         bag.for_each_frame(&mut |f| {
             let image = f.image.as_ref().map_err(|e| e.clone()).map(|i| (i.stamp, i.image.is_ok()));
-            frames.push((f.stamp, f.cloud.as_ref().map(|c| (c.len(), c.times.is_some())).map_err(|e| e.clone()), image));
+            frames.push((
+                f.stamp,
+                f.cloud.as_ref().map(|c| (c.len(), c.times.is_some())).map_err(|e| e.clone()),
+                image,
+            ));
             Ok(())
         })
         .unwrap();
@@ -121,7 +129,10 @@ fn a_named_topic_of_the_wrong_type_or_a_missing_one_is_a_clear_error() {
     let e = open(BagOptions { image_topic: Some("/nope".into()), ..Default::default() }).err().unwrap().to_string();
     assert!(e.contains("--image-topic /nope: no such topic"), "{e}");
     let e = open(BagOptions { base_frame: Some("chassis".into()), ..Default::default() }).err().unwrap().to_string();
-    assert!(e.contains("`chassis`") && e.contains("frames: base_link, camera_optical_frame, imu_link, lidar_link"), "{e}");
+    assert!(
+        e.contains("`chassis`") && e.contains("frames: base_link, camera_optical_frame, imu_link, lidar_link"),
+        "{e}"
+    );
     // A recording without clouds cannot be localized.
     let tf_only = manifest_dir().join("../../shared/data/ros_recordings/tf_example.bag");
     if tf_only.exists() {

@@ -44,15 +44,26 @@ fn schemas() -> Vec<(&'static str, String)> {
             "sensor_msgs/msg/PointCloud2",
             schema(
                 "std_msgs/Header header\nuint32 height\nuint32 width\nPointField[] fields\nbool is_bigendian\nuint32 point_step\nuint32 row_step\nuint8[] data\nbool is_dense\n",
-                &[HEADER, TIME, "MSG: sensor_msgs/PointField\nuint8 INT8=1\nuint8 UINT8=2\nuint8 INT16=3\nuint8 UINT16=4\nuint8 INT32=5\nuint8 UINT32=6\nuint8 FLOAT32=7\nuint8 FLOAT64=8\nstring name\nuint32 offset\nuint8 datatype\nuint32 count\n"],
+                &[
+                    HEADER,
+                    TIME,
+                    "MSG: sensor_msgs/PointField\nuint8 INT8=1\nuint8 UINT8=2\nuint8 INT16=3\nuint8 UINT16=4\nuint8 INT32=5\nuint8 UINT32=6\nuint8 FLOAT32=7\nuint8 FLOAT64=8\nstring name\nuint32 offset\nuint8 datatype\nuint32 count\n",
+                ],
             ),
         ),
-        ("sensor_msgs/msg/CompressedImage", schema("std_msgs/Header header\nstring format\nuint8[] data\n", &[HEADER, TIME])),
+        (
+            "sensor_msgs/msg/CompressedImage",
+            schema("std_msgs/Header header\nstring format\nuint8[] data\n", &[HEADER, TIME]),
+        ),
         (
             "sensor_msgs/msg/CameraInfo",
             schema(
                 "std_msgs/Header header\nuint32 height\nuint32 width\nstring distortion_model\nfloat64[] d\nfloat64[9] k\nfloat64[9] r\nfloat64[12] p\nuint32 binning_x\nuint32 binning_y\nRegionOfInterest roi\n",
-                &[HEADER, TIME, "MSG: sensor_msgs/RegionOfInterest\nuint32 x_offset\nuint32 y_offset\nuint32 height\nuint32 width\nbool do_rectify\n"],
+                &[
+                    HEADER,
+                    TIME,
+                    "MSG: sensor_msgs/RegionOfInterest\nuint32 x_offset\nuint32 y_offset\nuint32 height\nuint32 width\nbool do_rectify\n",
+                ],
             ),
         ),
         (
@@ -93,7 +104,10 @@ fn schemas() -> Vec<(&'static str, String)> {
                 ],
             ),
         ),
-        ("geometry_msgs/msg/PoseStamped", schema("std_msgs/Header header\nPose pose\n", &[HEADER, TIME, POSE, POINT, QUATERNION])),
+        (
+            "geometry_msgs/msg/PoseStamped",
+            schema("std_msgs/Header header\nPose pose\n", &[HEADER, TIME, POSE, POINT, QUATERNION]),
+        ),
     ]
 }
 
@@ -261,7 +275,12 @@ pub fn write_sequence_mcap(dir: &Path, out: &Path) -> Result<usize> {
     // Written beside the target under a temporary name, renamed when whole.
     let parent = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     std::fs::create_dir_all(parent).map_err(|e| DataError::io(parent, e))?;
-    let tmp = tempfile::Builder::new().prefix(".tmp-").suffix(".mcap").tempfile_in(parent).map_err(|e| DataError::io(parent, e))?;
+    let mut builder = tempfile::Builder::new();
+    builder.prefix(".tmp-").suffix(".mcap");
+    // Temporary files are private (0600); the recording is an ordinary file.
+    #[cfg(unix)]
+    builder.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o644));
+    let tmp = builder.tempfile_in(parent).map_err(|e| DataError::io(parent, e))?;
     let file = tmp.as_file().try_clone().map_err(|e| DataError::io(out, e))?;
     let mcap_error = |e: mcap::McapError| DataError::invalid(out, format!("writing MCAP: {e}"));
     let mut writer = mcap::WriteOptions::new()
@@ -309,7 +328,12 @@ pub fn write_sequence_mcap(dir: &Path, out: &Path) -> Result<usize> {
             Event::Image(path) => {
                 let bytes = crate::atomic::read_bytes(path)?;
                 let format = if path.extension().is_some_and(|e| e == "png") { "png" } else { "jpeg" };
-                write(&mut writer, image, t, &compressed_image(t, CAMERA_FRAME, &format!("rgb8; {format} compressed bgr8"), &bytes))?;
+                write(
+                    &mut writer,
+                    image,
+                    t,
+                    &compressed_image(t, CAMERA_FRAME, &format!("rgb8; {format} compressed bgr8"), &bytes),
+                )?;
                 write(&mut writer, info, t, &camera_info(t, CAMERA_FRAME, &calib))?;
                 written += 1;
             }

@@ -49,14 +49,31 @@ pub fn topics(path: &Path, bytes: &[u8]) -> Result<Vec<TopicInfo>> {
     let summary = mcap::Summary::read(bytes).map_err(|e| mcap_error(path, e))?;
     if let Some(summary) = summary.filter(|s| s.stats.is_some() && !s.chunk_indexes.is_empty()) {
         let stats = summary.stats.as_ref().expect("checked");
-        // The summary has no per-channel span; the chunks that hold a
-        // channel's messages bound it (to a chunk's length, a fraction of a second).
+        // Each chunk's message indexes give every message's log time per
+        // channel without unpacking the chunk; without them, the chunk's
+        // span bounds the channel's.
         let mut spans: BTreeMap<u16, (u64, u64)> = BTreeMap::new();
+        let mut widen = |id: u16, first: u64, last: u64| {
+            let span = spans.entry(id).or_insert((u64::MAX, 0));
+            span.0 = span.0.min(first);
+            span.1 = span.1.max(last);
+        };
         for chunk in &summary.chunk_indexes {
-            for id in chunk.message_index_offsets.keys() {
-                let span = spans.entry(*id).or_insert((u64::MAX, 0));
-                span.0 = span.0.min(chunk.message_start_time);
-                span.1 = span.1.max(chunk.message_end_time);
+            match summary.read_message_indexes(bytes, chunk) {
+                Ok(indexes) => {
+                    for (channel, entries) in indexes {
+                        if let (Some(first), Some(last)) =
+                            (entries.iter().map(|e| e.log_time).min(), entries.iter().map(|e| e.log_time).max())
+                        {
+                            widen(channel.id, first, last);
+                        }
+                    }
+                }
+                Err(_) => {
+                    for id in chunk.message_index_offsets.keys() {
+                        widen(*id, chunk.message_start_time, chunk.message_end_time);
+                    }
+                }
             }
         }
         for (id, channel) in &summary.channels {

@@ -5,8 +5,8 @@
 
 pub mod mcap_export;
 pub mod mcap_file;
-pub mod pose_topic;
 pub mod messages;
+pub mod pose_topic;
 pub mod ros1_bag;
 pub mod rosbag2;
 pub mod sqlite3;
@@ -124,7 +124,9 @@ impl Recording {
                 let beside = path.parent().filter(|d| d.join("metadata.yaml").is_file());
                 match beside {
                     Some(dir) => return Self::open(dir),
-                    None => (Source::Sqlite(vec![path.to_path_buf()]), Compression::None, "rosbag2 sqlite3 file".into()),
+                    None => {
+                        (Source::Sqlite(vec![path.to_path_buf()]), Compression::None, "rosbag2 sqlite3 file".into())
+                    }
                 }
             } else if head.starts_with(b"#ROSBAG") {
                 (Source::Ros1(path.to_path_buf()), Compression::None, "ROS 1 bag".to_string())
@@ -224,9 +226,8 @@ impl Recording {
                 return Ok(());
             }
             if message_compression {
-                let unpacked = rosbag2::unzstd(&self.path, data, MAX_UNPACKED_BYTES).map_err(|e| {
-                    DataError::message(&self.path, name, index, e.to_string())
-                })?;
+                let unpacked = rosbag2::unzstd(&self.path, data, MAX_UNPACKED_BYTES)
+                    .map_err(|e| DataError::message(&self.path, name, index, e.to_string()))?;
                 visit(RawMessage { topic, index, log_time_ns, data: &unpacked })
             } else {
                 visit(RawMessage { topic, index, log_time_ns, data })

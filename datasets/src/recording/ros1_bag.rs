@@ -15,6 +15,7 @@ use crate::recording::{RawVisitor, TopicInfo};
 const MAGIC: &[u8] = b"#ROSBAG V2.0\n";
 const OP_MESSAGE: u8 = 0x02;
 const OP_BAG_HEADER: u8 = 0x03;
+const OP_INDEX_DATA: u8 = 0x04;
 const OP_CHUNK: u8 = 0x05;
 const OP_CHUNK_INFO: u8 = 0x06;
 const OP_CONNECTION: u8 = 0x07;
@@ -159,7 +160,9 @@ pub struct Ros1Bag<'a> {
 impl<'a> Ros1Bag<'a> {
     pub fn new(path: &'a Path, bytes: &'a [u8]) -> Result<Self> {
         if !bytes.starts_with(MAGIC) {
-            let version = bytes.starts_with(b"#ROSBAG V").then(|| String::from_utf8_lossy(&bytes[..12.min(bytes.len())]).into_owned());
+            let version = bytes
+                .starts_with(b"#ROSBAG V")
+                .then(|| String::from_utf8_lossy(&bytes[..12.min(bytes.len())]).into_owned());
             return Err(DataError::invalid(
                 path,
                 match version {
@@ -269,17 +272,41 @@ impl<'a> Ros1Bag<'a> {
         for c in connections.values() {
             topic_of(&mut topics, c);
         }
+        // The index records after each chunk hold every message's time per
+        // connection: exact spans without unpacking a chunk.
+        let mut spans: BTreeMap<u32, (i64, i64)> = BTreeMap::new();
+        for record in self.records(self.first_record, self.index_pos, "index data") {
+            let record = record?;
+            if record.op() != Some(OP_INDEX_DATA) {
+                continue;
+            }
+            let Some(id) = le_u32(record.field("conn")) else { continue };
+            for entry in record.data.chunks_exact(12) {
+                if let Some(t) = time_ns(Some(&entry[..8])) {
+                    let span = spans.entry(id).or_insert((t, t));
+                    span.0 = span.0.min(t);
+                    span.1 = span.1.max(t);
+                }
+            }
+        }
         for info in &infos {
             let (start, end) = (time_ns(info.field("start_time")), time_ns(info.field("end_time")));
             for pair in info.data.chunks_exact(8) {
                 let id = u32::from_le_bytes(pair[..4].try_into().expect("4"));
                 let count = u32::from_le_bytes(pair[4..].try_into().expect("4")) as u64;
                 let Some(c) = connections.get(&id) else {
-                    return Err(DataError::byte(self.path, info.offset as u64, format!("chunk info names unknown connection {id}")));
+                    return Err(DataError::byte(
+                        self.path,
+                        info.offset as u64,
+                        format!("chunk info names unknown connection {id}"),
+                    ));
                 };
                 let entry = topics.get_mut(&c.topic).expect("inserted");
                 entry.count += count;
-                if let (Some(s), Some(e)) = (start, end) {
+                if let Some(&(s, e)) = spans.get(&id) {
+                    entry.first_ns = Some(entry.first_ns.map_or(s, |f| f.min(s)));
+                    entry.last_ns = Some(entry.last_ns.map_or(e, |l| l.max(e)));
+                } else if let (Some(s), Some(e)) = (start, end) {
                     entry.first_ns = Some(entry.first_ns.map_or(s, |f| f.min(s)));
                     entry.last_ns = Some(entry.last_ns.map_or(e, |l| l.max(e)));
                 }
@@ -291,33 +318,35 @@ impl<'a> Ros1Bag<'a> {
     fn visit_with(&self, visit: &mut dyn FnMut(&Connection, i64, &[u8]) -> Result<()>) -> Result<()> {
         let (mut connections, _) = self.index()?;
         let end = if self.index_pos == 0 { self.bytes.len() } else { self.index_pos };
-        let mut handle = |connections: &mut BTreeMap<u32, Connection>, record: &Record<'_>, base: usize| -> Result<()> {
-            match record.op() {
-                Some(OP_CONNECTION) => {
-                    let (id, c) = connection(self.path, record)?;
-                    connections.entry(id).or_insert(c);
+        let mut handle =
+            |connections: &mut BTreeMap<u32, Connection>, record: &Record<'_>, base: usize| -> Result<()> {
+                match record.op() {
+                    Some(OP_CONNECTION) => {
+                        let (id, c) = connection(self.path, record)?;
+                        connections.entry(id).or_insert(c);
+                    }
+                    Some(OP_MESSAGE) => {
+                        let at = (base + record.offset) as u64;
+                        let id = le_u32(record.field("conn"))
+                            .ok_or_else(|| DataError::byte(self.path, at, "message record without `conn`"))?;
+                        let time = time_ns(record.field("time"))
+                            .ok_or_else(|| DataError::byte(self.path, at, "message record without `time`"))?;
+                        let c = connections.get(&id).ok_or_else(|| {
+                            DataError::byte(self.path, at, format!("message of unknown connection {id}"))
+                        })?;
+                        visit(c, time, record.data)?;
+                    }
+                    _ => {}
                 }
-                Some(OP_MESSAGE) => {
-                    let at = (base + record.offset) as u64;
-                    let id = le_u32(record.field("conn"))
-                        .ok_or_else(|| DataError::byte(self.path, at, "message record without `conn`"))?;
-                    let time = time_ns(record.field("time"))
-                        .ok_or_else(|| DataError::byte(self.path, at, "message record without `time`"))?;
-                    let c = connections.get(&id).ok_or_else(|| {
-                        DataError::byte(self.path, at, format!("message of unknown connection {id}"))
-                    })?;
-                    visit(c, time, record.data)?;
-                }
-                _ => {}
-            }
-            Ok(())
-        };
+                Ok(())
+            };
         for record in self.records(self.first_record, end, "record") {
             let record = record?;
             match record.op() {
                 Some(OP_CHUNK) => {
                     let data = self.chunk_data(&record)?;
-                    let inner = Records { path: self.path, bytes: &data, pos: 0, base: record.offset, what: "chunk record" };
+                    let inner =
+                        Records { path: self.path, bytes: &data, pos: 0, base: record.offset, what: "chunk record" };
                     for r in inner {
                         handle(&mut connections, &r?, 0)?;
                     }

@@ -26,9 +26,7 @@ fn open(path: &Path) -> Result<Connection> {
 fn encoding(path: &Path, topic: &str, format: &str) -> Result<Encoding> {
     match format {
         "cdr" => Ok(Encoding::Cdr),
-        other => {
-            Err(DataError::invalid(path, format!("topic {topic}: serialization format `{other}` is not cdr")))
-        }
+        other => Err(DataError::invalid(path, format!("topic {topic}: serialization format `{other}` is not cdr"))),
     }
 }
 
@@ -82,7 +80,8 @@ pub fn visit(path: &Path, visit: &mut RawVisitor<'_>) -> Result<()> {
         let topic: String = row.get(0).map_err(|e| sql_error(path, e))?;
         let stamp: i64 = row.get(1).map_err(|e| sql_error(path, e))?;
         let data = row.get_ref(2).map_err(|e| sql_error(path, e))?;
-        let bytes = data.as_blob().map_err(|e| DataError::invalid(path, format!("topic {topic}: message data: {e}")))?;
+        let bytes =
+            data.as_blob().map_err(|e| DataError::invalid(path, format!("topic {topic}: message data: {e}")))?;
         visit(&topic, stamp, bytes)?;
     }
     Ok(())

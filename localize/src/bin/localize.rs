@@ -6,12 +6,12 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 use datasets::formats::read_trajectory;
+use localize::bag_sequence::BagSequence;
 use localize::config::LocalizeConfig;
 use localize::corner_source::CornerSource;
 use localize::eval::{Alignment, ErrorSummary, compare};
 use localize::levels::LevelMap;
 use localize::run::{metrics, run_sequence, write_outputs};
-use localize::bag_sequence::BagSequence;
 use localize::sequence::{RecordedSequence, SensorSequence, WithTruth};
 
 #[derive(Parser)]
@@ -562,7 +562,10 @@ fn bench_decoding(repeats: usize) -> serde_json::Value {
     let data: Vec<u8> = (0..n)
         .flat_map(|i| {
             let a = i as f32 * 0.01;
-            [5.0 * a.cos(), 5.0 * a.sin(), 0.3, 1.0].into_iter().flat_map(f32::to_le_bytes).chain((i * 10_000).to_le_bytes())
+            [5.0 * a.cos(), 5.0 * a.sin(), 0.3, 1.0]
+                .into_iter()
+                .flat_map(f32::to_le_bytes)
+                .chain((i * 10_000).to_le_bytes())
         })
         .collect();
     w.bytes(&data);
@@ -596,9 +599,13 @@ fn bench_decoding(repeats: usize) -> serde_json::Value {
         }
         start.elapsed().as_secs_f64() * 1e3 / repeats as f64
     };
-    let cloud_ms = time(&|| assert_eq!(decode(Encoding::Cdr, &cloud, point_cloud::point_cloud2).expect("valid").cloud.len(), n as usize));
-    let raw_ms = time(&|| assert_eq!(decode(Encoding::Cdr, &raw_image, image::image).expect("valid").image.width(), 640));
-    let png_ms =
-        time(&|| assert_eq!(decode(Encoding::Cdr, &png_image, image::compressed_image).expect("valid").image.width(), 640));
+    let cloud_ms = time(&|| {
+        assert_eq!(decode(Encoding::Cdr, &cloud, point_cloud::point_cloud2).expect("valid").cloud.len(), n as usize)
+    });
+    let raw_ms =
+        time(&|| assert_eq!(decode(Encoding::Cdr, &raw_image, image::image).expect("valid").image.width(), 640));
+    let png_ms = time(&|| {
+        assert_eq!(decode(Encoding::Cdr, &png_image, image::compressed_image).expect("valid").image.width(), 640)
+    });
     serde_json::json!({"cloud_10k_ms": cloud_ms, "image_bgr8_ms": raw_ms, "image_png_ms": png_ms})
 }

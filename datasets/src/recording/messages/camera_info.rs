@@ -37,11 +37,25 @@ impl CameraInfo {
 
     /// The pinhole model of the raw image (K).
     pub fn raw_camera(&self) -> PinholeCamera {
-        PinholeCamera { width: self.width, height: self.height, fx: self.k[0], fy: self.k[4], cx: self.k[2], cy: self.k[5] }
+        PinholeCamera {
+            width: self.width,
+            height: self.height,
+            fx: self.k[0],
+            fy: self.k[4],
+            cx: self.k[2],
+            cy: self.k[5],
+        }
     }
 
     /// The pinhole model of the rectified image (P), what `image_rect` topics carry.
     pub fn rectified_camera(&self) -> PinholeCamera {
-        PinholeCamera { width: self.width, height: self.height, fx: self.p[0], fy: self.p[5], cx: self.p[2], cy: self.p[6] }
+        PinholeCamera {
+            width: self.width,
+            height: self.height,
+            fx: self.p[0],
+            fy: self.p[5],
+            cx: self.p[2],
+            cy: self.p[6],
+        }
     }
 }

@@ -52,9 +52,9 @@ pub fn image(r: &mut dyn WireReader<'_>) -> WireResult<ImageMessage> {
     })?;
     let row = |y: usize| &data[y * step..y * step + w * bpp];
     let image = match kind {
-        "mono8" => DynamicImage::ImageLuma8(ImageBuffer::from_fn(width, height, |x, y| {
-            Luma([row(y as usize)[x as usize]])
-        })),
+        "mono8" => {
+            DynamicImage::ImageLuma8(ImageBuffer::from_fn(width, height, |x, y| Luma([row(y as usize)[x as usize]])))
+        }
         "mono16" => DynamicImage::ImageLuma16(ImageBuffer::from_fn(width, height, |x, y| {
             let b = &row(y as usize)[2 * x as usize..2 * x as usize + 2];
             Luma([if big_endian { u16::from_be_bytes([b[0], b[1]]) } else { u16::from_le_bytes([b[0], b[1]]) }])
@@ -120,8 +120,14 @@ mod tests {
         let im = |enc: &str, be: bool, row: &[u8]| decode(Encoding::Cdr, &message(enc, be, row), image).unwrap().image;
         assert_eq!(im("mono16", false, &[0x34, 0x12, 0xff, 0x00]).as_luma16().unwrap().as_raw(), &[0x1234, 0x00ff]);
         assert_eq!(im("mono16", true, &[0x12, 0x34, 0x00, 0xff]).as_luma16().unwrap().as_raw(), &[0x1234, 0x00ff]);
-        assert_eq!(im("rgba8", false, &[1, 2, 3, 4, 5, 6, 7, 8]).as_rgba8().unwrap().as_raw(), &[1, 2, 3, 4, 5, 6, 7, 8]);
-        assert_eq!(im("bgra8", false, &[1, 2, 3, 4, 5, 6, 7, 8]).as_rgba8().unwrap().as_raw(), &[3, 2, 1, 4, 7, 6, 5, 8]);
+        assert_eq!(
+            im("rgba8", false, &[1, 2, 3, 4, 5, 6, 7, 8]).as_rgba8().unwrap().as_raw(),
+            &[1, 2, 3, 4, 5, 6, 7, 8]
+        );
+        assert_eq!(
+            im("bgra8", false, &[1, 2, 3, 4, 5, 6, 7, 8]).as_rgba8().unwrap().as_raw(),
+            &[3, 2, 1, 4, 7, 6, 5, 8]
+        );
         assert_eq!(im("rgb8", false, &[1, 2, 3, 4, 5, 6]).as_rgb8().unwrap().as_raw(), &[1, 2, 3, 4, 5, 6]);
         assert_eq!(im("bgr8", false, &[1, 2, 3, 4, 5, 6]).as_rgb8().unwrap().as_raw(), &[3, 2, 1, 6, 5, 4]);
         // Data shorter than height x step (less the last row's padding) is refused.

@@ -132,7 +132,10 @@ pub fn point_cloud2(r: &mut dyn WireReader<'_>) -> WireResult<CloudMessage> {
     })?;
     let needed = if height == 0 { 0 } else { (height as u64 - 1) * row_step as u64 + row_bytes };
     ensure(needed <= data.len() as u64, || {
-        format!("{width} x {height} points of {point_step} bytes need {needed} bytes of data, the message has {}", data.len())
+        format!(
+            "{width} x {height} points of {point_step} bytes need {needed} bytes of data, the message has {}",
+            data.len()
+        )
     })?;
 
     let mut cloud = PointCloud::new(Vec::with_capacity(points as usize), intensity.map(|_| Vec::new()));
