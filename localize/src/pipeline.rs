@@ -71,6 +71,16 @@ pub struct FrameReport {
     pub total_ms: f64,
 }
 
+/// A frame's 2D corners and where the camera was when it saw them.
+pub struct CameraCorners {
+    /// The detected corners (or why there are none).
+    pub pixels: std::result::Result<Vec<[f64; 2]>, String>,
+    /// The camera at the image's own time, seen from the LIDAR at the scan's.
+    pub lidar_from_camera: Pose3,
+    /// The detector's own time.
+    pub detect_ms: f64,
+}
+
 pub struct Localizer {
     geometry: GeometryStages,
     fusion: CornerFusion,
@@ -111,21 +121,19 @@ impl Localizer {
     }
 
     /// Processes one frame whose filter has been advanced to its time:
-    /// `geometry` from `frame_geometry`, `pixels` the detected 2D corners (or
-    /// why there are none), `lidar_from_camera` the camera at the image's
-    /// own time seen from the LIDAR at the scan's, `detect_ms` the detector's own time, `started`
-    /// when the frame's work began (its `total_ms` is the wall time since).
-    /// The filter holds the fused pose after.
+    /// `geometry` from `frame_geometry`, `camera` the image's corners,
+    /// `started` when the frame's work began (its `total_ms` is the wall
+    /// time since). The filter holds the fused pose after.
     pub fn process(
         &mut self,
         stamp: f64,
         ekf: &mut Ekf,
         geometry: std::result::Result<Geometry, String>,
-        pixels: std::result::Result<Vec<[f64; 2]>, String>,
-        lidar_from_camera: &Pose3,
-        detect_ms: f64,
+        camera: CameraCorners,
         started: Instant,
     ) -> FrameReport {
+        let CameraCorners { pixels, lidar_from_camera, detect_ms } = camera;
+        let lidar_from_camera = &lidar_from_camera;
         let first = self.frames_seen == 0;
         self.frames_seen += 1;
         let mut report = FrameReport {

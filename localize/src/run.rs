@@ -17,7 +17,7 @@ use crate::error::Result;
 use crate::eval::{Alignment, ErrorSummary, compare};
 use crate::levels::{LevelMap, SegmentMetrics};
 use crate::motion::FrameMotion;
-use crate::pipeline::{FrameReport, Localizer};
+use crate::pipeline::{CameraCorners, FrameReport, Localizer};
 use crate::sequence::{FrameInput, SensorSequence};
 
 pub struct RunResult {
@@ -97,7 +97,8 @@ pub fn run_sequence(
                 (image, source) => source.corners(&name, image.as_ref().ok()),
             },
         );
-        let report = localizer.process(stamp, &mut fused, geometry, pixels, &lidar_from_camera, detect_ms, started);
+        let camera = CameraCorners { pixels, lidar_from_camera, detect_ms };
+        let report = localizer.process(stamp, &mut fused, geometry, camera, started);
         bar.set_message(report.status.label());
         bar.inc(1);
         result.trajectory.push(stamp, report.pose);

@@ -150,6 +150,9 @@ fn connection(path: &Path, record: &Record<'_>) -> Result<(u32, Connection)> {
     Ok((id, Connection { topic, type_name }))
 }
 
+/// What `visit_with` hands each message to: its connection, time (ns) and data.
+type ConnectionVisitor<'v> = dyn FnMut(&Connection, i64, &[u8]) -> Result<()> + 'v;
+
 pub struct Ros1Bag<'a> {
     path: &'a Path,
     bytes: &'a [u8],
@@ -315,7 +318,7 @@ impl<'a> Ros1Bag<'a> {
         Ok(topics.into_values().collect())
     }
 
-    fn visit_with(&self, visit: &mut dyn FnMut(&Connection, i64, &[u8]) -> Result<()>) -> Result<()> {
+    fn visit_with(&self, visit: &mut ConnectionVisitor<'_>) -> Result<()> {
         let (mut connections, _) = self.index()?;
         let end = if self.index_pos == 0 { self.bytes.len() } else { self.index_pos };
         let mut handle =

@@ -26,7 +26,7 @@ enum Command {
     /// Compares an estimated trajectory with ground truth (TUM, KITTI or EuRoC, detected from the content).
     Eval(EvalArgs),
     /// Localizes a recorded sequence (a folder or a ROS bag): trajectory, per-frame log and, with ground truth, metrics and a picture.
-    Run(RunArgs),
+    Run(Box<RunArgs>),
     /// Prints what a recording holds (as `ros2 bag info` does) and which topic each role would take.
     Inspect(InspectArgs),
     /// Prints the planes and 3D corners of one point cloud (PCD, PLY or KITTI .bin).
