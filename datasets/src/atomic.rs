@@ -75,8 +75,20 @@ pub fn write_dir<E: From<DataError>>(
 }
 
 /// Reads a whole file, naming it in the error.
+/// Only regular files are read: a FIFO or a device would block or never end.
 pub fn read_bytes(path: &Path) -> Result<Vec<u8>> {
+    check_regular(path)?;
     std::fs::read(path).map_err(|e| DataError::io(path, e))
+}
+
+/// Fails unless `path` is a regular file (after symbolic links), before
+/// anything opens it (opening a FIFO for reading waits for a writer).
+pub fn check_regular(path: &Path) -> Result<()> {
+    let meta = std::fs::metadata(path).map_err(|e| DataError::io(path, e))?;
+    if !meta.is_file() {
+        return Err(DataError::invalid(path, "not a regular file (a folder, FIFO or device)"));
+    }
+    Ok(())
 }
 
 /// Reads a whole text file, naming it in the error.

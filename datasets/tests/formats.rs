@@ -390,3 +390,73 @@ fn coco_round_trips_and_checks_references() {
     let m = message(read_coco(&path).unwrap_err());
     assert!(m.contains("train.json") && m.contains("line 1"), "{m}");
 }
+
+#[test]
+fn declared_sizes_beyond_the_data_are_errors_not_allocations() {
+    let dir = tempfile::tempdir().unwrap();
+    let header = |points: &str, size: &str, data: &str| {
+        format!(
+            "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n{size}\nPOINTS {points}\nDATA {data}\n"
+        )
+    };
+    let write = |name: &str, text: String, body: &[u8]| {
+        let path = dir.path().join(name);
+        let mut bytes = text.into_bytes();
+        bytes.extend_from_slice(body);
+        std::fs::write(&path, bytes).unwrap();
+        path
+    };
+    let huge = (1u64 << 62).to_string();
+    for (name, points, size, data) in [
+        ("trillion.pcd", "1000000000000", "WIDTH 1000000000000\nHEIGHT 1", "binary"),
+        ("two62.pcd", huge.as_str(), &*format!("WIDTH {huge}\nHEIGHT 1"), "binary"),
+        ("compressed.pcd", "1000000000000", "WIDTH 1000000000000\nHEIGHT 1", "binary_compressed"),
+        ("ascii.pcd", "1000000000000", "WIDTH 1000000000000\nHEIGHT 1", "ascii"),
+    ] {
+        let path = write(name, header(points, size, data), &[0u8; 24]);
+        let e = message(read_cloud(&path, NonFinite::Drop).unwrap_err());
+        assert!(e.contains(name), "{name}: {e}");
+    }
+    let overflow = write("overflow.pcd", header("1", "WIDTH 18446744073709551615\nHEIGHT 2", "binary"), &[0u8; 12]);
+    assert!(message(read_cloud(&overflow, NonFinite::Drop).unwrap_err()).contains("overflows"));
+    let zero =
+        "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 0 1 1\nWIDTH 1\nHEIGHT 1\nPOINTS 1\nDATA ascii\n";
+    for data in ["ascii", "binary"] {
+        let path = write(&format!("count0-{data}.pcd"), zero.replace("DATA ascii", &format!("DATA {data}")), b"1 2\n");
+        assert!(message(read_cloud(&path, NonFinite::Drop).unwrap_err()).contains("field `x` has COUNT 0"), "{data}");
+    }
+    // A count lower than the data: the rest is not silently ignored.
+    let low = write("low.pcd", header("1", "WIDTH 1\nHEIGHT 1", "binary"), &[1u8; 24]);
+    assert!(message(read_cloud(&low, NonFinite::Drop).unwrap_err()).contains("after the 1 points the header declares"));
+    // Zeros after the points are PCL's page padding.
+    let padded = write("padded.pcd", header("1", "WIDTH 1\nHEIGHT 1", "binary"), &[0u8; 4096]);
+    assert_eq!(read_cloud(&padded, NonFinite::Drop).unwrap().len(), 1);
+    let ply = |count: &str, body: &[u8]| {
+        let mut bytes = format!(
+            "ply\nformat binary_little_endian 1.0\nelement vertex {count}\nproperty float x\nproperty float y\nproperty float z\nend_header\n"
+        )
+        .into_bytes();
+        bytes.extend_from_slice(body);
+        bytes
+    };
+    let path = dir.path().join("huge.ply");
+    std::fs::write(&path, ply("1000000000000", &[0u8; 24])).unwrap();
+    assert!(message(read_cloud(&path, NonFinite::Drop).unwrap_err()).contains("file ends inside the binary body"));
+    std::fs::write(&path, ply("1", &[0u8; 24])).unwrap();
+    assert!(message(read_cloud(&path, NonFinite::Drop).unwrap_err()).contains("12 bytes after the items"));
+    std::fs::write(&path, ply("2", &[0u8; 24])).unwrap();
+    assert_eq!(read_cloud(&path, NonFinite::Drop).unwrap().len(), 2);
+}
+
+#[cfg(unix)]
+#[test]
+fn a_fifo_is_refused_at_once_instead_of_waiting_for_a_writer() {
+    let dir = tempfile::tempdir().unwrap();
+    let fifo = dir.path().join("scan.pcd");
+    let made = std::process::Command::new("mkfifo").arg(&fifo).status().expect("mkfifo runs");
+    assert!(made.success());
+    let e = message(read_cloud(&fifo, NonFinite::Drop).unwrap_err());
+    assert!(e.contains("scan.pcd") && e.contains("not a regular file"), "{e}");
+    let e = datasets::recording::Recording::open(&fifo).unwrap_err().to_string();
+    assert!(e.contains("not a regular file"), "{e}");
+}

@@ -46,6 +46,9 @@ pub enum NonFinite {
     Reject,
 }
 
+/// Points reserved ahead at most; more grow the vectors as they come.
+const MAX_RESERVED_POINTS: usize = 1 << 22;
+
 /// Collects points while applying the non-finite policy.
 pub(crate) struct CloudBuilder<'a> {
     path: &'a Path,
@@ -56,7 +59,11 @@ pub(crate) struct CloudBuilder<'a> {
 }
 
 impl<'a> CloudBuilder<'a> {
+    /// `capacity` is what the file declares: it is reserved only up to a
+    /// bound, so a header that claims 10^12 points is a truncated-data
+    /// error when the points run out, not an allocation that aborts.
     pub fn new(path: &'a Path, policy: NonFinite, capacity: usize, with_intensity: bool) -> Self {
+        let capacity = capacity.min(MAX_RESERVED_POINTS);
         Self {
             path,
             policy,

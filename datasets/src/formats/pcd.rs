@@ -13,6 +13,8 @@ use super::lzf;
 use crate::error::{DataError, Result};
 use crate::math::Pose3;
 
+/// Most values one field may hold per point (a descriptor histogram holds hundreds).
+const MAX_FIELD_COUNT: usize = 1 << 16;
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum PcdData {
     Ascii,
@@ -179,6 +181,14 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header> {
                             ),
                         ));
                     }
+                    // COUNT 0 would give a field no bytes to read; a huge one no file can hold.
+                    if counts[i] == 0 || counts[i] > MAX_FIELD_COUNT {
+                        return Err(DataError::line(
+                            path,
+                            line_no,
+                            format!("field `{}` has COUNT {} (1 to {MAX_FIELD_COUNT})", names[i], counts[i]),
+                        ));
+                    }
                     fields.push(Field {
                         name: names[i].clone(),
                         size: sizes[i],
@@ -188,10 +198,13 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header> {
                     });
                     offset += sizes[i] * counts[i];
                 }
-                let from_size = match (width, height) {
-                    (Some(w), Some(h)) => Some(w * h),
-                    _ => None,
-                };
+                let from_size =
+                    match (width, height) {
+                        (Some(w), Some(h)) => Some(w.checked_mul(h).ok_or_else(|| {
+                            DataError::line(path, line_no, format!("WIDTH {w} x HEIGHT {h} overflows"))
+                        })?),
+                        _ => None,
+                    };
                 let points = match (points, from_size) {
                     (Some(p), Some(s)) if p != s => {
                         return Err(DataError::line(
@@ -283,7 +296,17 @@ pub fn read_pcd_bytes(path: &Path, bytes: &[u8], policy: NonFinite) -> Result<Po
             }
         }
         PcdData::Binary => {
-            let need = n * record;
+            // A declared count is not trusted: no product may wrap around.
+            let need = n.saturating_mul(record);
+            // PCL pads binary files with zeros to a page; anything else past
+            // the declared points is data the header does not count.
+            if data.len() > need && data[need..].iter().any(|&b| b != 0) {
+                return Err(DataError::byte(
+                    path,
+                    (header.data_start + need) as u64,
+                    format!("the data holds {} bytes after the {n} points the header declares", data.len() - need),
+                ));
+            }
             if data.len() < need {
                 return Err(DataError::byte(
                     path,
@@ -315,7 +338,7 @@ pub fn read_pcd_bytes(path: &Path, bytes: &[u8], policy: NonFinite) -> Result<Po
                     format!("compressed block of {packed} bytes is truncated ({} present)", data.len() - 8),
                 ));
             }
-            if unpacked != n * record {
+            if unpacked != n.saturating_mul(record) {
                 return Err(DataError::byte(
                     path,
                     at + 4,

@@ -214,6 +214,10 @@ pub fn read_ply_bytes(path: &Path, bytes: &[u8], policy: NonFinite) -> Result<Po
                     cloud.push(item, [v(ix), v(iy), v(iz)], ii.map_or(0.0, v))?;
                 }
             }
+            // A count lower than the data would silently drop the rest.
+            if let Some((no, _)) = lines.find(|(_, l)| !l.trim().is_empty()) {
+                return Err(DataError::line(path, no, "data after the items the header declares"));
+            }
         }
         PlyFormat::BinaryLittleEndian | PlyFormat::BinaryBigEndian => {
             let little = format == PlyFormat::BinaryLittleEndian;
@@ -241,6 +245,13 @@ pub fn read_ply_bytes(path: &Path, bytes: &[u8], policy: NonFinite) -> Result<Po
                         cloud.push(item, [v(ix), v(iy), v(iz)], ii.map_or(0.0, v))?;
                     }
                 }
+            }
+            if pos < bytes.len() {
+                return Err(DataError::byte(
+                    path,
+                    pos as u64,
+                    format!("{} bytes after the items the header declares", bytes.len() - pos),
+                ));
             }
         }
     }

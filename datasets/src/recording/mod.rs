@@ -79,11 +79,8 @@ pub struct Recording {
 const MAX_UNPACKED_BYTES: u64 = 16 << 30;
 
 fn map_file(path: &Path) -> Result<memmap2::Mmap> {
+    crate::atomic::check_regular(path)?;
     let file = std::fs::File::open(path).map_err(|e| DataError::io(path, e))?;
-    let meta = file.metadata().map_err(|e| DataError::io(path, e))?;
-    if !meta.is_file() {
-        return Err(DataError::invalid(path, "not a regular file"));
-    }
     // SAFETY: the map is read only; a recording that another process
     // truncates while we read it is outside what any reader can promise.
     unsafe { memmap2::Mmap::map(&file) }.map_err(|e| DataError::io(path, e))
@@ -136,6 +133,8 @@ impl Recording {
                     "not a recording (expected a rosbag2 folder, an MCAP file, a rosbag2 .db3 or a ROS 1 .bag)",
                 ));
             }
+        } else if path.exists() {
+            return Err(DataError::invalid(path, "not a regular file or a folder (a FIFO or device?)"));
         } else {
             return Err(DataError::invalid(path, "no such file or folder"));
         };
