@@ -27,6 +27,9 @@ impl CornerSource {
 
     /// Corner pixels from a COCO file with `point`s, by image file stem.
     pub fn labels(path: &Path, noise_px: f64, seed: u64) -> Result<Self> {
+        if !(0.0..=1000.0).contains(&noise_px) {
+            return Err(LocalizeError::Config(format!("label noise must be 0 to 1000 px, got {noise_px}")));
+        }
         let coco = datasets::formats::read_coco(path)?;
         let mut by_image: HashMap<String, Vec<[f64; 2]>> = HashMap::new();
         let names: HashMap<u64, String> = coco

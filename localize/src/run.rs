@@ -44,6 +44,7 @@ pub fn run_sequence(
     let Some(&start_time) = stamps.first() else {
         return Err(crate::error::LocalizeError::Config("the recording has no LIDAR scans".into()));
     };
+    check_logs_cover(&stamps, sequence)?;
     // The world frame is the robot's pose at the first frame.
     let start = datasets::math::Pose3::identity();
     let mut fused = Ekf::new(config.ekf.clone(), &start, start_time);
@@ -63,10 +64,14 @@ pub fn run_sequence(
         corner_landmarks: Vec::new(),
         plane_landmarks: Vec::new(),
     };
+    let mut unreadable: Vec<String> = Vec::new();
     let robot_from_camera = calibration.robot_from_camera();
     let lidar_from_robot = calibration.robot_from_lidar.inverse();
     sequence.for_each_frame(&mut |frame: FrameInput| {
         let FrameInput { stamp, mut cloud, image } = frame;
+        if let Err(why) = &cloud {
+            unreadable.push(why.clone());
+        }
         // A frame's time counts from here: filter, deskewing, geometry and detector.
         let started = Instant::now();
         let image_stamp = image.as_ref().ok().map(|i| i.stamp);
@@ -107,9 +112,47 @@ pub fn run_sequence(
         Ok(())
     })?;
     bar.finish();
+    // Clouds that cannot be read are each a frame's fallback; all of them
+    // unreadable is a broken recording, not a run.
+    if unreadable.len() == result.frames.len()
+        && let Some(why) = unreadable.first()
+    {
+        return Err(crate::error::LocalizeError::Cloud(format!(
+            "every one of the {} clouds is unreadable; the first: {why}",
+            result.frames.len()
+        )));
+    }
     result.corner_landmarks = localizer.map.landmarks.clone();
     result.plane_landmarks = localizer.plane_map.landmarks.clone();
     Ok(result)
+}
+
+/// Longest a scan may lie past either end of the odometry and IMU logs
+/// (beyond, its pose would be extrapolated, not measured).
+const MAX_OUTSIDE_LOGS_S: f64 = 1.0;
+
+fn check_logs_cover(stamps: &[f64], sequence: &dyn SensorSequence) -> Result<()> {
+    let spans = [
+        ("odometry", sequence.odometry().first().map(|s| s.timestamp), sequence.odometry().last().map(|s| s.timestamp)),
+        ("IMU", sequence.imu().first().map(|s| s.timestamp), sequence.imu().last().map(|s| s.timestamp)),
+    ];
+    for (name, first, last) in spans {
+        let (Some(first), Some(last)) = (first, last) else {
+            return Err(crate::error::LocalizeError::Config(format!("the {name} log is empty")));
+        };
+        let outside: Vec<f64> = stamps
+            .iter()
+            .copied()
+            .filter(|&t| t > last + MAX_OUTSIDE_LOGS_S || t < first - MAX_OUTSIDE_LOGS_S)
+            .collect();
+        if let Some(t) = outside.first() {
+            return Err(crate::error::LocalizeError::Config(format!(
+                "{} scans lie more than {MAX_OUTSIDE_LOGS_S} s outside the {name} log ({first:.6} to {last:.6} s), the first at {t:.6} s",
+                outside.len()
+            )));
+        }
+    }
+    Ok(())
 }
 
 /// The errors of one trajectory against the ground truth.

@@ -44,7 +44,7 @@ impl Default for SyncConfig {
 
 impl SyncConfig {
     pub fn validate(&self) -> std::result::Result<(), String> {
-        if !(self.image_tolerance_s >= 0.0 && self.image_tolerance_s <= 10.0) {
+        if !(0.0..=10.0).contains(&self.image_tolerance_s) {
             return Err(format!("sync.image_tolerance_s must be in [0, 10] s, got {}", self.image_tolerance_s));
         }
         Ok(())
@@ -172,6 +172,12 @@ impl RecordedSequence {
         let calibration = read_calibration(&dir.join("calib.json"))?;
         let odometry = read_odometry(&dir.join("odom.csv"))?;
         let imu = read_imu(&dir.join("imu.csv"))?;
+        // A log with a header and no rows would leave the filter blind, not stop it.
+        for (name, empty) in [("odom.csv", odometry.is_empty()), ("imu.csv", imu.is_empty())] {
+            if empty {
+                return Err(error(&dir.join(name), "a header and no rows: the filter needs the samples"));
+            }
+        }
         let truth_path = dir.join("groundtruth.txt");
         let ground_truth = if truth_path.is_file() { Some(read_tum(&truth_path)?) } else { None };
         if let Some(t) = &ground_truth {

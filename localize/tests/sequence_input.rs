@@ -159,3 +159,35 @@ fn scans_take_the_nearest_image_within_the_tolerance_on_its_own_clock() {
     let bad = localize::sequence::SyncConfig { image_tolerance_s: f64::NAN, ..Default::default() };
     assert!(RecordedSequence::open_with(dir.path(), &bad).err().unwrap().to_string().contains("image_tolerance_s"));
 }
+
+#[test]
+fn empty_logs_every_cloud_broken_and_scans_past_the_logs_are_errors() {
+    let labels = |dir: &Path| CornerSource::labels(&dir.join("labels.json"), 0.0, 1).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    write_sequence(dir.path());
+    std::fs::write(dir.path().join("odom.csv"), "timestamp,x,y,yaw,v,omega\n").unwrap();
+    let e = RecordedSequence::open(dir.path()).err().unwrap().to_string();
+    assert!(e.contains("odom.csv") && e.contains("a header and no rows"), "{e}");
+
+    let dir = tempfile::tempdir().unwrap();
+    write_sequence(dir.path());
+    for t in ["0.000000", "1.000000", "2.000000"] {
+        std::fs::write(dir.path().join(format!("cloud/{t}.pcd")), b"VERSION 0.7\n").unwrap();
+    }
+    let sequence = RecordedSequence::open(dir.path()).unwrap();
+    let e = run_sequence(&sequence, &mut labels(dir.path()), &LocalizeConfig::default(), false).err().unwrap();
+    assert!(e.to_string().contains("every one of the 3 clouds is unreadable; the first:"), "{e}");
+
+    // A scan 55 s after the logs end would be extrapolated, not measured.
+    let dir = tempfile::tempdir().unwrap();
+    write_sequence(dir.path());
+    datasets::formats::write_pcd(&dir.path().join("cloud/57.0.pcd"), &box_room(), PcdData::Binary).unwrap();
+    let sequence = RecordedSequence::open(dir.path()).unwrap();
+    let e = run_sequence(&sequence, &mut labels(dir.path()), &LocalizeConfig::default(), false).err().unwrap();
+    assert!(e.to_string().contains("1 scans lie more than 1 s outside the odometry log"), "{e}");
+
+    for noise in [f64::NAN, -1.0] {
+        let e = CornerSource::labels(&dir.path().join("labels.json"), noise, 1).err().unwrap().to_string();
+        assert!(e.contains("label noise must be 0 to 1000 px"), "{e}");
+    }
+}
