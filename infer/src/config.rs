@@ -242,6 +242,33 @@ impl DetectorConfig {
         if !((0.0..=1.0).contains(&d.score_threshold) && (0.0..=1.0).contains(&d.nms_iou)) {
             return Err("detection thresholds must lie in 0..1".into());
         }
+        // Every size a config can set is bounded: a checkpoint's config.json
+        // that asks for 10^9 hidden units is an error, not an allocation abort.
+        let (r, p) = (&self.rpn, &self.roi);
+        let sizes = [
+            ("hidden", self.hidden, 1 << 16),
+            ("in_channels", self.in_channels, 16),
+            ("num_classes", self.num_classes, 1024),
+            ("preprocess.size", size, 2048),
+            ("grid_cells", self.grid_cells, 512),
+            ("anchors.sizes", self.anchors.sizes.len(), 64),
+            ("anchors.aspect_ratios", self.anchors.aspect_ratios.len(), 64),
+            ("rpn.pre_nms_top_n_train", r.pre_nms_top_n_train, 1 << 20),
+            ("rpn.post_nms_top_n_train", r.post_nms_top_n_train, 1 << 20),
+            ("rpn.pre_nms_top_n_test", r.pre_nms_top_n_test, 1 << 20),
+            ("rpn.post_nms_top_n_test", r.post_nms_top_n_test, 1 << 20),
+            ("rpn.batch_size_per_image", r.batch_size_per_image, 1 << 16),
+            ("roi.pool_size", p.pool_size, 64),
+            ("roi.sampling_ratio", p.sampling_ratio, 64),
+            ("roi.batch_size_per_image", p.batch_size_per_image, 1 << 16),
+            ("detection.max_detections", d.max_detections, 1 << 16),
+        ];
+        if let Some((name, value, max)) = sizes.iter().find(|(_, v, max)| v > max) {
+            return Err(format!("{name} {value} is larger than {max}"));
+        }
+        if p.pool_size == 0 {
+            return Err("roi.pool_size must be at least 1".into());
+        }
         Ok(())
     }
 }
@@ -252,4 +279,24 @@ fn fc_head() -> GridHead {
 
 pub fn default_hidden(width: f32) -> usize {
     ((4096.0 * width * width).round() as usize).max(64)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_size_a_config_sets_is_bounded() {
+        let good = DetectorConfig::new(Backbone::FasterRcnn, 0.25);
+        assert_eq!(good.validate(), Ok(()));
+        let mut huge = good.clone();
+        huge.hidden = 1_000_000_000;
+        assert_eq!(huge.validate(), Err("hidden 1000000000 is larger than 65536".into()));
+        let mut huge = good.clone();
+        huge.roi.pool_size = 1 << 20;
+        assert!(huge.validate().unwrap_err().starts_with("roi.pool_size"));
+        let mut huge = good;
+        huge.detection.max_detections = usize::MAX;
+        assert!(huge.validate().unwrap_err().starts_with("detection.max_detections"));
+    }
 }
