@@ -272,8 +272,10 @@ impl Recording {
         let messages: u64 = self.topics.iter().map(|t| t.count).sum();
         if let Some((first, last)) = self.span_ns() {
             let _ = writeln!(out, "Duration:          {:.9}s", (last - first) as f64 * 1e-9);
-            let _ = writeln!(out, "Start:             {:.9} (epoch s)", wire::ns_to_s(first));
-            let _ = writeln!(out, "End:               {:.9} (epoch s)", wire::ns_to_s(last));
+            // Printed from the integer nanoseconds: exact, as `ros2 bag info` does.
+            let stamp = |ns: i64| format!("{}.{:09}", ns.div_euclid(1_000_000_000), ns.rem_euclid(1_000_000_000));
+            let _ = writeln!(out, "Start:             {} (epoch s)", stamp(first));
+            let _ = writeln!(out, "End:               {} (epoch s)", stamp(last));
         }
         let _ = writeln!(out, "Messages:          {messages}");
         let _ = writeln!(out, "Topic information:");
