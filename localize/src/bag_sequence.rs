@@ -508,29 +508,29 @@ impl SensorSequence for BagSequence {
                 let k: usize = *k;
                 let image = match self.pairs[k] {
                     None => Err(format!("no image within {} s of scan {:.6}", self.tolerance_s, self.scans[k].stamp)),
-                    Some(j) => match held.get(&j) {
-                        Some(im) => {
-                            let im: &std::result::Result<::image::DynamicImage, String> = im;
-                            Ok(FrameImage {
-                                stamp: self.images[j].stamp,
-                                name: datasets::generate::stamp_name(self.images[j].stamp),
-                                image: im.clone(),
-                            })
+                    Some(j) if !held.contains_key(&j) => {
+                        if !all {
+                            // Its image comes later in the file: wait for it.
+                            return Ok(());
                         }
-                        None if all => Err(format!(
+                        Err(format!(
                             "image message {} of the scan at {:.6} never came",
                             self.images[j].index, self.scans[k].stamp
-                        )),
-                        None => return Ok(()),
-                    },
-                };
-                if let Some(j) = self.pairs[k] {
-                    let users = image_users.entry(self.images[j].index).or_default();
-                    *users = users.saturating_sub(1);
-                    if *users == 0 {
-                        held.remove(&j);
+                        ))
                     }
-                }
+                    Some(j) => {
+                        let users = image_users.entry(self.images[j].index).or_default();
+                        *users = users.saturating_sub(1);
+                        // The last scan that takes an image takes it over; earlier ones copy it.
+                        let image: std::result::Result<::image::DynamicImage, String> =
+                            if *users == 0 { held.remove(&j).expect("held") } else { held[&j].clone() };
+                        Ok(FrameImage {
+                            stamp: self.images[j].stamp,
+                            name: datasets::generate::stamp_name(self.images[j].stamp),
+                            image,
+                        })
+                    }
+                };
                 let (_, cloud) = pending.pop_front().expect("front exists");
                 visit(FrameInput { stamp: self.scans[k].stamp, cloud, image })?;
             }
