@@ -191,3 +191,31 @@ fn empty_logs_every_cloud_broken_and_scans_past_the_logs_are_errors() {
         assert!(e.contains("label noise must be 0 to 1000 px"), "{e}");
     }
 }
+
+#[test]
+fn an_image_between_two_scans_serves_both_from_a_bag_as_from_the_folder() {
+    use localize::sequence::SensorSequence;
+    let dir = tempfile::tempdir().unwrap();
+    write_sequence(dir.path());
+    std::fs::create_dir_all(dir.path().join("rgb")).unwrap();
+    let image = image::DynamicImage::new_rgb8(640, 480);
+    datasets::atomic::write_image(&dir.path().join("rgb/1.5.png"), &image).unwrap();
+    let bag = dir.path().join("still.mcap");
+    datasets::recording::mcap_export::write_sequence_mcap(dir.path(), &bag).unwrap();
+    let sync = localize::sequence::SyncConfig { image_tolerance_s: 0.6, ..Default::default() };
+    let folder = RecordedSequence::open_with(dir.path(), &sync).unwrap();
+    let recording =
+        localize::bag_sequence::BagSequence::open(&bag, &localize::bag_sequence::BagOptions::default(), &sync).unwrap();
+    for sequence in [&folder as &dyn SensorSequence, &recording] {
+        let mut taken = Vec::new();
+        sequence
+            .for_each_frame(&mut |f| {
+                let image = f.image.map(|i| (i.stamp, i.image.map(|im| im.width()).unwrap_or(0)));
+                taken.push((f.stamp, f.cloud.map(|c| c.len()).unwrap_or(0), image.ok()));
+                Ok(())
+            })
+            .unwrap();
+        let points = box_room().len();
+        assert_eq!(taken, [(0.0, points, None), (1.0, points, Some((1.5, 640))), (2.0, points, Some((1.5, 640)))]);
+    }
+}
