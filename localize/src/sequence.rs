@@ -13,8 +13,8 @@
 use std::path::{Path, PathBuf};
 
 use datasets::formats::{
-    Calibration, ImuSample, NonFinite, OdometrySample, PointCloud, Trajectory, read_calibration, read_cloud, read_imu,
-    read_odometry, read_tum,
+    CLOUD_EXTENSIONS, Calibration, IMAGE_EXTENSIONS, ImuSample, NonFinite, OdometrySample, PointCloud, Trajectory,
+    read_calibration, read_cloud, read_imu, read_odometry, read_tum, stamped_files,
 };
 use datasets::math::Pose3;
 use image::DynamicImage;
@@ -107,40 +107,11 @@ pub struct RecordedSequence {
     pub image_tolerance_s: f64,
 }
 
-const CLOUD_EXTENSIONS: [&str; 3] = ["pcd", "ply", "bin"];
-const IMAGE_EXTENSIONS: [&str; 3] = ["png", "jpg", "jpeg"];
-
 fn error(path: &Path, message: impl Into<String>) -> LocalizeError {
     LocalizeError::Sequence { path: path.to_path_buf(), message: message.into() }
 }
 
 pub use datasets::generate::parse_stamp_name as stamp_of_name;
-
-/// The files of `dir` with one of `extensions`, by time, with their times;
-/// a name that is not a time is an error naming it.
-fn stamped_files(dir: &Path, extensions: &[&str], what: &str) -> Result<Vec<(f64, PathBuf)>> {
-    let entries = std::fs::read_dir(dir).map_err(|e| error(dir, e.to_string()))?;
-    let mut files = Vec::new();
-    for entry in entries {
-        let path = entry.map_err(|e| error(dir, e.to_string()))?.path();
-        let Some(ext) = path.extension().and_then(|e| e.to_str()) else { continue };
-        if !extensions.contains(&ext.to_ascii_lowercase().as_str()) {
-            continue;
-        }
-        let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or_default();
-        let stamp = stamp_of_name(stem).ok_or_else(|| {
-            error(&path, format!("{what} file name is not a timestamp (seconds, or nanoseconds with 16+ digits)"))
-        })?;
-        files.push((stamp, path));
-    }
-    files.sort_by(|a, b| a.0.total_cmp(&b.0));
-    for w in files.windows(2) {
-        if w[1].0 == w[0].0 {
-            return Err(error(&w[1].1, format!("duplicate timestamp {} (also {})", w[1].0, w[0].1.display())));
-        }
-    }
-    Ok(files)
-}
 
 /// For each of `scans` (sorted), the index of the nearest of `images`
 /// (sorted) within `tolerance` seconds.

@@ -10,8 +10,8 @@ use std::path::{Path, PathBuf};
 
 use crate::error::{DataError, Result};
 use crate::formats::{
-    Calibration, ImuSample, NonFinite, OdometrySample, Trajectory, read_calibration, read_cloud, read_imu,
-    read_odometry, read_tum,
+    CLOUD_EXTENSIONS, Calibration, IMAGE_EXTENSIONS, ImuSample, NonFinite, OdometrySample, Trajectory,
+    read_calibration, read_cloud, read_imu, read_odometry, read_tum, stamped_files,
 };
 use crate::math::{Pose3, Rot3};
 use crate::recording::wire::{CdrWriter, Header};
@@ -223,28 +223,6 @@ pub fn pose_stamped(stamp_ns: i64, frame: &str, pose: &Pose3) -> Vec<u8> {
     w.finish()
 }
 
-/// The files of `dir/sub` with an extension in `exts`, by the time their
-/// names give.
-fn stamped(dir: &Path, exts: &[&str]) -> Result<Vec<(i64, PathBuf)>> {
-    let mut out = Vec::new();
-    if !dir.is_dir() {
-        return Ok(out);
-    }
-    for entry in std::fs::read_dir(dir).map_err(|e| DataError::io(dir, e))? {
-        let path = entry.map_err(|e| DataError::io(dir, e))?.path();
-        let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
-        if !ext.is_some_and(|e| exts.contains(&e.as_str())) {
-            continue;
-        }
-        let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or_default();
-        let t = crate::generate::parse_stamp_name(stem)
-            .ok_or_else(|| DataError::invalid(&path, "file name is not a timestamp"))?;
-        out.push((ns(t), path));
-    }
-    out.sort();
-    Ok(out)
-}
-
 enum Event {
     Cloud(PathBuf),
     Image(PathBuf),
@@ -260,14 +238,15 @@ pub fn write_sequence_mcap(dir: &Path, out: &Path) -> Result<usize> {
     let odom_log = read_odometry(&dir.join("odom.csv"))?;
     let truth_path = dir.join("groundtruth.txt");
     let truth = if truth_path.is_file() { read_tum(&truth_path)? } else { Trajectory::default() };
-    let clouds = stamped(&dir.join("cloud"), &["pcd", "ply", "bin"])?;
-    let images = stamped(&dir.join("rgb"), &["png", "jpg", "jpeg"])?;
+    let clouds = stamped_files(&dir.join("cloud"), &CLOUD_EXTENSIONS, "cloud")?;
+    let rgb = dir.join("rgb");
+    let images = if rgb.is_dir() { stamped_files(&rgb, &IMAGE_EXTENSIONS, "image")? } else { Vec::new() };
     let mut events: Vec<(i64, u8, Event)> = Vec::new();
     // Within one instant: the motion sensors first, as a driver would deliver them.
     events.extend(imu_log.iter().enumerate().map(|(k, s)| (ns(s.timestamp), 0, Event::Imu(k))));
     events.extend(odom_log.iter().enumerate().map(|(k, s)| (ns(s.timestamp), 1, Event::Odometry(k))));
-    events.extend(clouds.iter().map(|(t, p)| (*t, 2, Event::Cloud(p.clone()))));
-    events.extend(images.iter().map(|(t, p)| (*t, 3, Event::Image(p.clone()))));
+    events.extend(clouds.iter().map(|(t, p)| (ns(*t), 2, Event::Cloud(p.clone()))));
+    events.extend(images.iter().map(|(t, p)| (ns(*t), 3, Event::Image(p.clone()))));
     events.extend(truth.stamps.iter().enumerate().map(|(k, t)| (ns(*t), 4, Event::Truth(k))));
     events.sort_by_key(|(t, order, _)| (*t, *order));
     let start = events.first().map_or(0, |e| e.0);

@@ -78,11 +78,6 @@ impl MessageKind {
     }
 }
 
-/// Reads just the header that every stamped message starts with.
-pub fn header(encoding: Encoding, bytes: &[u8]) -> WireResult<super::wire::Header> {
-    decode(encoding, bytes, |r| r.header())
-}
-
 pub(crate) fn ensure(condition: bool, message: impl FnOnce() -> String) -> WireResult<()> {
     if condition { Ok(()) } else { Err(wire_error(message())) }
 }
