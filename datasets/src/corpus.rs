@@ -58,6 +58,7 @@ impl CorpusConfig {
         let rise2 = lerp(2, 0.3, 0.8);
         let top = rise1 + rise2;
         WorldConfig {
+            building: 0,
             level_heights_m: [0.0, rise1, top],
             ramp_slope_deg: lerp(3, 6.0, 14.0),
             ceiling_height_m: top + lerp(4, 2.2, 3.2),

@@ -19,7 +19,7 @@ use crate::math::Pose3;
 use crate::preprocess::{PreprocessConfig, preprocess};
 use crate::world::labels::{CornerLabel, LabelConfig, visible_corners};
 use crate::world::layout::{Floor, mix};
-use crate::world::lidar::{LidarConfig, scan};
+use crate::world::lidar::{LidarConfig, scan, sweep};
 use crate::world::motion::{MotionConfig, simulate_imu, simulate_odometry};
 use crate::world::render::{Lighting, render};
 use crate::world::rig::Rig;
@@ -74,21 +74,63 @@ impl Default for DetectionConfig {
 pub struct SequenceConfig {
     /// Robot speed along the route (the paper: 0.05 m/s).
     pub speed_mps: f64,
-    /// Camera and LIDAR frame rate (the paper: 1 Hz).
+    /// LIDAR scan rate, and the camera's when it has none of its own (the
+    /// paper: both at 1 Hz).
     pub rate_hz: f64,
-    /// Frames to record; `None` drives the whole route once.
+    /// Frames (scans) to record; `None` drives the whole route once, up to `max_scans`.
     pub frames: Option<usize>,
+    /// The most scans a whole-route sequence records: at slow speeds the
+    /// sequence covers the start of the route.
+    pub max_scans: Option<usize>,
+    /// The camera's own frame rate; `None` takes one image per scan.
+    pub camera_rate_hz: Option<f64>,
     /// Radius of the route's turns.
     pub turn_radius_m: f64,
-    /// How long after each scan its image is taken (a camera on its own
-    /// clock); the image is rendered from the pose at its own time and named
-    /// by it. 0, the paper's, takes both together.
+    /// How long after each scan its image is taken, or with a camera rate
+    /// of its own, the time of its first image; each image is rendered from
+    /// the pose at its own time and named by it. 0, the paper's, takes scan
+    /// and image together.
     pub camera_delay_s: f64,
 }
 
 impl Default for SequenceConfig {
     fn default() -> Self {
-        Self { speed_mps: 0.05, rate_hz: 1.0, frames: None, turn_radius_m: 1.2, camera_delay_s: 0.0 }
+        Self {
+            speed_mps: 0.05,
+            rate_hz: 1.0,
+            frames: None,
+            max_scans: None,
+            camera_rate_hz: None,
+            turn_radius_m: 1.2,
+            camera_delay_s: 0.0,
+        }
+    }
+}
+
+impl DatagenConfig {
+    /// The settings for building `number`: the paper's for 0; for a
+    /// generated building, a robot's sensors on their own clocks: a spinning
+    /// LIDAR at 10 Hz sweeping over 0.1 s, the camera at 15 Hz, odometry at
+    /// 50 Hz with slip on ramps, the IMU at 200 Hz, 1 m/s, at most 3000 scans.
+    pub fn for_building(number: u32) -> Self {
+        let mut config = Self::default();
+        config.world.building = number;
+        if number == 0 {
+            return config;
+        }
+        config.sequence = SequenceConfig {
+            speed_mps: 1.0,
+            rate_hz: 10.0,
+            max_scans: Some(3000),
+            camera_rate_hz: Some(15.0),
+            camera_delay_s: 0.021,
+            ..SequenceConfig::default()
+        };
+        config.lidar.sweep_period_s = 0.1;
+        config.motion.odometry_rate_hz = 50.0;
+        config.motion.imu_rate_hz = 200.0;
+        config.motion.ramp_slip = 0.03;
+        config
     }
 }
 
@@ -113,6 +155,21 @@ impl DatagenConfig {
         }
         if s.frames == Some(0) {
             return Err("sequence: frames must be at least 1".into());
+        }
+        if s.max_scans == Some(0) {
+            return Err("sequence: max scans must be at least 1".into());
+        }
+        if let Some(rate) = s.camera_rate_hz
+            && !(rate.is_finite() && rate > 0.0 && rate <= 100.0)
+        {
+            return Err(format!("sequence: camera rate {rate} Hz outside (0, 100]"));
+        }
+        if self.lidar.sweep_period_s > 1.0 / s.rate_hz + 1e-9 {
+            return Err(format!(
+                "lidar: a sweep of {} s is longer than the {} s between scans",
+                self.lidar.sweep_period_s,
+                1.0 / s.rate_hz
+            ));
         }
         if !(s.camera_delay_s.abs() <= 1.0) {
             return Err(format!("sequence: camera delay {} s outside [-1, 1]", s.camera_delay_s));
@@ -233,7 +290,8 @@ fn random_robot_pose(world: &World, rng: &mut ChaCha8Rng) -> Pose3 {
         let blocked = layout
             .obstacles
             .iter()
-            .any(|b| x > b.x[0] - margin && x < b.x[1] + margin && y > b.y[0] - margin && y < b.y[1] + margin);
+            .any(|b| x > b.x[0] - margin && x < b.x[1] + margin && y > b.y[0] - margin && y < b.y[1] + margin)
+            || layout.blocks.iter().any(|b| b.distance([x, y]) < margin);
         if blocked {
             continue;
         }
@@ -285,8 +343,10 @@ pub(crate) fn render_views(
             let mut rng = ChaCha8Rng::seed_from_u64(k);
             let world_from_camera = random_view(world, rig, &mut rng);
             let lighting = Lighting::varied(k, world.layout.lights.len());
-            let image = render(world, &rig.camera, &world_from_camera, &lighting);
-            let labels = visible_corners(world, &rig.camera, &world_from_camera, &config.labels);
+            // People stand where they are at a random moment.
+            let time = rng.random_range(0.0..600.0);
+            let image = render(world, &rig.camera, &world_from_camera, &lighting, time);
+            let labels = visible_corners(world, &rig.camera, &world_from_camera, &config.labels, time);
             let name = format!("{i:06}.png");
             let image = DynamicImage::ImageRgb8(image);
             atomic::write_image(
@@ -330,18 +390,23 @@ pub(crate) fn write_coco_splits(
     Ok(label_count)
 }
 
-/// A recorded frame of the sequence.
+/// A LIDAR scan of the sequence.
 pub struct Frame {
+    /// The scan's stamp: the start of its sweep.
     pub stamp: f64,
-    /// When the frame's image was taken (`stamp` + the camera delay).
-    pub image_stamp: f64,
     pub world_from_robot: Pose3,
-    pub labels: Vec<CornerLabel>,
     pub cloud: formats::PointCloud,
+}
+
+/// A camera image of the sequence.
+pub struct Shot {
+    pub stamp: f64,
+    pub labels: Vec<CornerLabel>,
 }
 
 pub struct Sequence {
     pub frames: Vec<Frame>,
+    pub shots: Vec<Shot>,
     pub route_length_m: f64,
     pub frames_after_route_end: usize,
 }
@@ -368,45 +433,77 @@ fn write_sequence(dir: &Path, world: &World, rig: &Rig, config: &DatagenConfig) 
     let route = Route::new(&world.layout.route, s.turn_radius_m);
     let length = route.length();
     let whole_route = (length / s.speed_mps * s.rate_hz).floor() as usize + 1;
-    let count = s.frames.unwrap_or(whole_route);
+    let count = s.frames.unwrap_or_else(|| whole_route.min(s.max_scans.unwrap_or(usize::MAX)));
     let frames_after_route_end = count.saturating_sub(whole_route);
     let layout = &world.layout;
+    // The route is checked once, every 5 cm, so that poses never fail later.
+    for k in 0..=(length / 0.05).ceil() as usize {
+        let (xy, heading) = route.at(k as f64 * 0.05);
+        if pose_on_floor(layout, xy, heading).is_none() {
+            return Err(DataError::invalid(
+                dir,
+                format!(
+                    "the route leaves the free space at ({:.2}, {:.2}) with a turn radius of {} m",
+                    xy[0], xy[1], s.turn_radius_m
+                ),
+            ));
+        }
+    }
     let pose_at = |t: f64| -> Pose3 {
         let (xy, heading) = route.at(s.speed_mps * t.max(0.0));
-        pose_on_floor(layout, xy, heading).expect("the route stays inside the free space")
+        pose_on_floor(layout, xy, heading).expect("the route was checked to stay inside the free space")
     };
-    let bar = progress(count, "sequence");
+    let last_scan = (count - 1) as f64 / s.rate_hz;
+    let image_stamps: Vec<f64> = match s.camera_rate_hz {
+        None => (0..count).map(|k| k as f64 / s.rate_hz + s.camera_delay_s).collect(),
+        Some(rate) => {
+            let end = last_scan + config.lidar.sweep_period_s;
+            (0..).map(|i| s.camera_delay_s + i as f64 / rate).take_while(|&t| t <= end).collect()
+        }
+    };
+
+    let bar = progress(count + image_stamps.len(), "sequence");
     let frames: Vec<Result<Frame>> = (0..count)
         .into_par_iter()
         .map(|k| {
             let stamp = k as f64 / s.rate_hz;
-            let image_stamp = stamp + s.camera_delay_s;
             let world_from_robot = pose_at(stamp);
+            let lidar_key = key(config.seed, stream::LIDAR, k as u64);
+            let cloud = if config.lidar.sweep_period_s > 0.0 {
+                let world_from_lidar = |t: f64| pose_at(t) * rig.robot_from_lidar;
+                sweep(world, &config.lidar, &world_from_lidar, stamp, lidar_key)
+            } else {
+                scan(world, &config.lidar, &(world_from_robot * rig.robot_from_lidar), stamp, lidar_key)
+            };
+            formats::write_pcd(&dir.join("cloud").join(format!("{}.pcd", stamp_name(stamp))), &cloud, PcdData::Binary)?;
+            bar.inc(1);
+            Ok(Frame { stamp, world_from_robot, cloud })
+        })
+        .collect();
+    let frames: Vec<Frame> = frames.into_iter().collect::<Result<_>>()?;
+    let shots: Vec<Result<Shot>> = image_stamps
+        .par_iter()
+        .enumerate()
+        .map(|(k, &image_stamp)| {
             let world_from_camera = pose_at(image_stamp) * rig.robot_from_camera;
             // Lighting drifts slowly along the route, noise changes every frame.
             let mut lighting = Lighting::varied(key(config.seed, stream::SEQUENCE_LIGHT, 0), layout.lights.len());
-            lighting.gain *= 1.0 + 0.15 * (stamp as f32 * 0.01).sin();
+            lighting.gain *= 1.0 + 0.15 * ((image_stamp - s.camera_delay_s) as f32 * 0.01).sin();
             lighting.noise_seed = key(config.seed, stream::SEQUENCE_LIGHT, k as u64 + 1);
-            let image = render(world, &rig.camera, &world_from_camera, &lighting);
-            let labels = visible_corners(world, &rig.camera, &world_from_camera, &config.labels);
-            let cloud = scan(
-                world,
-                &config.lidar,
-                &(world_from_robot * rig.robot_from_lidar),
-                key(config.seed, stream::LIDAR, k as u64),
-            );
-            let image_name = stamp_name(image_stamp);
-            atomic::write_image(&dir.join("rgb").join(format!("{image_name}.png")), &DynamicImage::ImageRgb8(image))?;
-            formats::write_pcd(&dir.join("cloud").join(format!("{}.pcd", stamp_name(stamp))), &cloud, PcdData::Binary)?;
+            let image = render(world, &rig.camera, &world_from_camera, &lighting, image_stamp);
+            let labels = visible_corners(world, &rig.camera, &world_from_camera, &config.labels, image_stamp);
+            let name = stamp_name(image_stamp);
+            atomic::write_image(&dir.join("rgb").join(format!("{name}.png")), &DynamicImage::ImageRgb8(image))?;
             bar.inc(1);
-            Ok(Frame { stamp, image_stamp, world_from_robot, labels, cloud })
+            Ok(Shot { stamp: image_stamp, labels })
         })
         .collect();
     bar.finish_and_clear();
-    let frames: Vec<Frame> = frames.into_iter().collect::<Result<_>>()?;
+    let shots: Vec<Shot> = shots.into_iter().collect::<Result<_>>()?;
 
-    // The logs run to the last image too when the camera lags.
-    let duration = (count - 1) as f64 / s.rate_hz + s.camera_delay_s.max(0.0);
+    // The logs run to the last image and the end of the last sweep.
+    let last_image = image_stamps.last().copied().unwrap_or(0.0);
+    let duration = (last_scan + config.lidar.sweep_period_s).max(last_image);
     let odometry = simulate_odometry(&pose_at, duration, &config.motion, key(config.seed, stream::ODOMETRY, 0));
     let imu = simulate_imu(&pose_at, duration, &config.motion, key(config.seed, stream::IMU, 0));
     formats::write_odometry(&dir.join("odom.csv"), &odometry)?;
@@ -418,19 +515,19 @@ fn write_sequence(dir: &Path, world: &World, rig: &Rig, config: &DatagenConfig) 
 
     let mut labels = CocoDataset { categories: categories(), ..Default::default() };
     let mut next_id = 0;
-    for (k, f) in frames.iter().enumerate() {
+    for (k, shot) in shots.iter().enumerate() {
         let id = k as u64 + 1;
         labels.images.push(CocoImage {
             id,
-            file_name: format!("rgb/{}.png", stamp_name(f.image_stamp)),
+            file_name: format!("rgb/{}.png", stamp_name(shot.stamp)),
             width: rig.camera.width,
             height: rig.camera.height,
         });
-        labels.annotations.extend(coco_annotations(&f.labels, id, &mut next_id));
+        labels.annotations.extend(coco_annotations(&shot.labels, id, &mut next_id));
     }
     formats::write_coco(&dir.join("labels.json"), &labels)?;
     atomic::write_json(&dir.join("world.json"), &WorldDescription::of(world))?;
-    Ok(Sequence { frames, route_length_m: length, frames_after_route_end })
+    Ok(Sequence { frames, shots, route_length_m: length, frames_after_route_end })
 }
 
 /// `world.json`: what the ground truth knows about the area, for per-level
@@ -453,8 +550,7 @@ impl<'a> WorldDescription<'a> {
     pub fn of(world: &'a World) -> Self {
         let layout = &world.layout;
         let levels = layout
-            .config
-            .level_heights_m
+            .levels
             .iter()
             .enumerate()
             .map(|(i, &h)| LevelDescription { name: format!("level {}", i + 1), floor_height_m: h })
@@ -478,14 +574,14 @@ pub fn draw_labels(image: &mut RgbImage, labels: &[CornerLabel]) {
 }
 
 fn write_previews(dir: &Path, world: &World, rig: &Rig, sequence: &Sequence) -> Result<()> {
-    let n = sequence.frames.len();
+    let n = sequence.shots.len();
     let picks: Vec<usize> = if n <= 4 { (0..n).collect() } else { (0..4).map(|i| i * (n - 1) / 3).collect() };
     let seq_dir: PathBuf = dir.parent().map(|p| p.join("sequence")).unwrap_or_default();
     for k in picks {
-        let frame = &sequence.frames[k];
-        let path = seq_dir.join("rgb").join(format!("{}.png", stamp_name(frame.image_stamp)));
+        let shot = &sequence.shots[k];
+        let path = seq_dir.join("rgb").join(format!("{}.png", stamp_name(shot.stamp)));
         let mut image = atomic::read_image(&path)?.to_rgb8();
-        draw_labels(&mut image, &frame.labels);
+        draw_labels(&mut image, &shot.labels);
         atomic::write_image(&dir.join(format!("frame_{k:05}_labels.png")), &DynamicImage::ImageRgb8(image))?;
     }
     atomic::write_image(&dir.join("topdown.png"), &DynamicImage::ImageRgb8(top_down(world, rig, sequence)))
@@ -507,8 +603,9 @@ fn top_down(world: &World, rig: &Rig, sequence: &Sequence) -> RgbImage {
     let (w, h) = (((x1 - x0 + 2.0 * pad) * px_per_m) as u32, ((y1 - y0 + 2.0 * pad) * px_per_m) as u32);
     let to_px = |x: f64, y: f64| (((x - x0 + pad) * px_per_m) as f32, ((y1 + pad - y) * px_per_m) as f32);
     let mut image = RgbImage::from_pixel(w, h, Rgb([255, 255, 255]));
-    let [lo, _, hi] = layout.config.level_heights_m;
-    let ceiling = layout.config.ceiling_height_m;
+    let lo = layout.levels.first().copied().unwrap_or(0.0);
+    let hi = layout.levels.last().copied().unwrap_or(0.0);
+    let ceiling = layout.regions.iter().map(|r| layout.ceiling_of(r, r.x[0], r.y[0])).fold(f64::MIN, f64::max);
     for (px, py, pixel) in image.enumerate_pixels_mut() {
         let x = px as f64 / px_per_m + x0 - pad;
         let y = y1 + pad - py as f64 / px_per_m;

@@ -22,6 +22,10 @@ fn bad_flags_and_settings_are_named() {
     assert!(!ok && err.contains("train split 20 is larger than the 10 images"), "{err}");
     let (ok, err) = datagen(&["--out", o, "--frames", "0"]);
     assert!(!ok && err.contains("frames must be at least 1"), "{err}");
+    let (ok, err) = datagen(&["--out", o, "--building", "2000000"]);
+    assert!(!ok && err.contains("building 2000000 outside"), "{err}");
+    let (ok, err) = datagen(&["--out", o, "--building", "-3"]);
+    assert!(!ok && err.contains("--building"), "{err}");
     let (ok, err) = datagen(&["--out", o, "--colour", "red"]);
     assert!(!ok && err.contains("--colour"), "{err}");
     assert!(!out.exists(), "nothing is written for a bad command line");

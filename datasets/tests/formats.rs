@@ -58,6 +58,35 @@ fn pcd_round_trips_in_all_three_data_kinds() {
 }
 
 #[test]
+fn pcd_point_times_round_trip_and_ouster_nanoseconds_read_as_seconds() {
+    let dir = tempfile::tempdir().unwrap();
+    for with_intensity in [false, true] {
+        let mut cloud = sample_cloud(with_intensity);
+        cloud.times = Some((0..257).map(|i| i as f32 * 0.1 / 257.0).collect());
+        for kind in [PcdData::Ascii, PcdData::Binary, PcdData::BinaryCompressed] {
+            let path = dir.path().join(format!("t-{with_intensity}-{kind:?}.pcd"));
+            write_pcd(&path, &cloud, kind).unwrap();
+            let back = read_pcd(&path, NonFinite::Drop).unwrap();
+            assert_eq!(back.points, cloud.points, "{kind:?}");
+            assert_eq!(back.intensity, cloud.intensity, "{kind:?}");
+            assert_eq!(back.times, cloud.times, "{kind:?}");
+        }
+    }
+    // An Ouster-style `t` field: unsigned nanoseconds after the stamp; a
+    // dropped NaN point takes its time with it.
+    let text = "VERSION 0.7\nFIELDS x y z t\nSIZE 4 4 4 4\nTYPE F F F U\nCOUNT 1 1 1 1\nWIDTH 3\nHEIGHT 1\n\
+                VIEWPOINT 0 0 0 1 0 0 0\nPOINTS 3\nDATA ascii\n1 2 3 0\nnan 0 0 50000000\n4 5 6 99000000\n";
+    let path = dir.path().join("ouster.pcd");
+    std::fs::write(&path, text).unwrap();
+    let cloud = read_pcd(&path, NonFinite::Drop).unwrap();
+    assert_eq!(cloud.len(), 2);
+    assert_eq!(cloud.times, Some(vec![0.0, 0.099]));
+    // Without a time field there are no times.
+    write_pcd(&path, &sample_cloud(false), PcdData::Binary).unwrap();
+    assert_eq!(read_pcd(&path, NonFinite::Drop).unwrap().times, None);
+}
+
+#[test]
 fn pcd_malformed_files_name_the_line_or_byte() {
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("bad.pcd");

@@ -101,7 +101,7 @@ fn occluded_corners_are_not_labeled() {
     // The robot at the start of the route, facing the first box (x 2.5..3.1, y 1.3..1.9, 0.7 m high).
     let robot = pose_on_floor(&world.layout, [0.5, 1.6], 0.0).unwrap();
     let world_from_camera = robot * rig.robot_from_camera;
-    let labels = visible_corners(&world, &rig.camera, &world_from_camera, &LabelConfig::default());
+    let labels = visible_corners(&world, &rig.camera, &world_from_camera, &LabelConfig::default(), 0.0);
     let labeled = |p: [f64; 3]| {
         labels.iter().any(|l| {
             let c = world.layout.corners[l.corner].position;

@@ -3,6 +3,7 @@
 //! an odometry/IMU prior, and trajectory metrics.
 
 pub mod bag_sequence;
+pub mod benchmark;
 pub mod config;
 pub mod corner_source;
 pub mod corners;

@@ -219,3 +219,43 @@ fn an_image_between_two_scans_serves_both_from_a_bag_as_from_the_folder() {
         assert_eq!(taken, [(0.0, points, None), (1.0, points, Some((1.5, 640))), (2.0, points, Some((1.5, 640)))]);
     }
 }
+
+#[test]
+fn a_generated_building_with_its_own_clocks_reads_as_scans_with_images_and_sweeps() {
+    use localize::sequence::SensorSequence;
+    // Building 1 with a robot's timing: 10 Hz sweeps, a 15 Hz camera 21 ms
+    // off the LIDAR's clock, 50 Hz odometry, 200 Hz IMU.
+    let dir = tempfile::tempdir().unwrap();
+    let mut config = datasets::generate::DatagenConfig::for_building(1);
+    config.detection.images = 0;
+    config.detection.train = 0;
+    config.sequence.frames = Some(6);
+    datasets::generate::generate(dir.path(), &config).unwrap();
+    let sequence = RecordedSequence::open(&dir.path().join("sequence")).unwrap();
+    let stamps = sequence.frame_stamps();
+    assert_eq!(stamps.len(), 6);
+    assert!(stamps.windows(2).all(|w| (w[1] - w[0] - 0.1).abs() < 1e-9), "{stamps:?}");
+    // Odometry at 50 Hz and the IMU at 200 Hz to the end of the last sweep.
+    let dt = |t: &[f64]| (t[t.len() - 1] - t[0]) / (t.len() - 1) as f64;
+    let odometry: Vec<f64> = sequence.odometry().iter().map(|s| s.timestamp).collect();
+    let imu: Vec<f64> = sequence.imu().iter().map(|s| s.timestamp).collect();
+    assert!((dt(&odometry) - 0.02).abs() < 1e-9 && (dt(&imu) - 0.005).abs() < 1e-9);
+    assert!(*imu.last().unwrap() >= stamps[5] + 0.1 - 0.005);
+    let mut seen = 0;
+    sequence
+        .for_each_frame(&mut |frame| {
+            let cloud = frame.cloud.expect("readable cloud");
+            let times = cloud.times.expect("a sweep keeps its point times");
+            assert!(times.iter().all(|&t| (0.0..0.1).contains(&t)));
+            assert!(times.last().unwrap() - times[0] > 0.09, "the points span the sweep");
+            // The nearest 15 Hz image on the camera's clock: 0.021 + k / 15 s.
+            let image = frame.image.expect("an image within 50 ms");
+            let k = ((image.stamp - 0.021) * 15.0).round();
+            assert!((image.stamp - (0.021 + k / 15.0)).abs() < 1e-6, "image at {}", image.stamp);
+            assert!((image.stamp - frame.stamp).abs() <= 1.0 / 30.0 + 1e-6);
+            seen += 1;
+            Ok(())
+        })
+        .unwrap();
+    assert_eq!(seen, 6);
+}

@@ -55,6 +55,7 @@ pub(crate) struct CloudBuilder<'a> {
     policy: NonFinite,
     points: Vec<Point3<f32>>,
     intensity: Option<Vec<f32>>,
+    times: Option<Vec<f32>>,
     dropped: usize,
 }
 
@@ -69,12 +70,24 @@ impl<'a> CloudBuilder<'a> {
             policy,
             points: Vec::with_capacity(capacity),
             intensity: with_intensity.then(|| Vec::with_capacity(capacity)),
+            times: None,
             dropped: 0,
         }
     }
 
+    /// Keeps a time per point (seconds after the cloud's stamp).
+    pub fn with_times(mut self) -> Self {
+        self.times = Some(Vec::with_capacity(self.points.capacity()));
+        self
+    }
+
     /// Adds point number `index` (0-based, for the error message).
     pub fn push(&mut self, index: usize, xyz: [f32; 3], intensity: f32) -> Result<()> {
+        self.push_timed(index, xyz, intensity, 0.0)
+    }
+
+    /// Adds a point with its time (kept when the builder keeps times).
+    pub fn push_timed(&mut self, index: usize, xyz: [f32; 3], intensity: f32, time: f32) -> Result<()> {
         if xyz.iter().any(|v| !v.is_finite()) {
             return match self.policy {
                 NonFinite::Drop => {
@@ -90,6 +103,9 @@ impl<'a> CloudBuilder<'a> {
         if let Some(values) = &mut self.intensity {
             values.push(intensity);
         }
+        if let Some(values) = &mut self.times {
+            values.push(time);
+        }
         Ok(())
     }
 
@@ -99,7 +115,7 @@ impl<'a> CloudBuilder<'a> {
             intensity: self.intensity,
             viewpoint,
             dropped_non_finite: self.dropped,
-            times: None,
+            times: self.times,
         }
     }
 }

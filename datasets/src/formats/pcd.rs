@@ -242,8 +242,15 @@ pub fn read_pcd_bytes(path: &Path, bytes: &[u8], policy: NonFinite) -> Result<Po
     let iy = header.field(&["y"]).ok_or_else(|| missing("y"))?;
     let iz = header.field(&["z"]).ok_or_else(|| missing("z"))?;
     let ii = header.field(&["intensity", "i"]);
+    // Per-point time: Velodyne-style `time` in seconds, or Ouster-style
+    // unsigned `t` in nanoseconds.
+    let it = header.field(&["time", "t"]);
+    let time_scale = it.map_or(1.0, |k| if header.fields[k].kind == b'F' { 1.0 } else { 1e-9 });
     let n = header.points;
     let mut cloud = CloudBuilder::new(path, policy, n, ii.is_some());
+    if it.is_some() {
+        cloud = cloud.with_times();
+    }
     let data = &bytes[header.data_start..];
     let record = header.record_bytes();
     match header.data {
@@ -288,7 +295,11 @@ pub fn read_pcd_bytes(path: &Path, bytes: &[u8], policy: NonFinite) -> Result<Po
                     Some(i) => value(i)?,
                     None => 0.0,
                 };
-                cloud.push(index, [value(ix)?, value(iy)?, value(iz)?], intensity)?;
+                let time = match it {
+                    Some(k) => (value(k)? as f64 * time_scale) as f32,
+                    None => 0.0,
+                };
+                cloud.push_timed(index, [value(ix)?, value(iy)?, value(iz)?], intensity, time)?;
                 index += 1;
             }
             if index != n {
@@ -321,7 +332,8 @@ pub fn read_pcd_bytes(path: &Path, bytes: &[u8], policy: NonFinite) -> Result<Po
             for i in 0..n {
                 let rec = &data[i * record..(i + 1) * record];
                 let get = |k: usize| f[k].decode(&rec[f[k].offset..]) as f32;
-                cloud.push(i, [get(ix), get(iy), get(iz)], ii.map_or(0.0, get))?;
+                let time = it.map_or(0.0, |k| (f[k].decode(&rec[f[k].offset..]) * time_scale) as f32);
+                cloud.push_timed(i, [get(ix), get(iy), get(iz)], ii.map_or(0.0, get), time)?;
             }
         }
         PcdData::BinaryCompressed => {
@@ -354,7 +366,8 @@ pub fn read_pcd_bytes(path: &Path, bytes: &[u8], policy: NonFinite) -> Result<Po
                 f[k].decode(&raw[start..]) as f32
             };
             for i in 0..n {
-                cloud.push(i, [get(ix, i), get(iy, i), get(iz, i)], ii.map_or(0.0, |k| get(k, i)))?;
+                let time = it.map_or(0.0, |k| (get(k, i) as f64 * time_scale) as f32);
+                cloud.push_timed(i, [get(ix, i), get(iy, i), get(iz, i)], ii.map_or(0.0, |k| get(k, i)), time)?;
             }
         }
     }
@@ -368,7 +381,8 @@ fn parse_ascii_number(w: &str) -> Option<f32> {
     }
 }
 
-/// Writes a PCD file (fields `x y z` and `intensity` when present), atomically.
+/// Writes a PCD file (fields `x y z`, then `intensity` and `time` (seconds
+/// after the stamp) when present), atomically.
 pub fn write_pcd(path: &Path, cloud: &PointCloud, data: PcdData) -> Result<()> {
     let bytes = pcd_bytes(cloud, data);
     crate::atomic::write_bytes(path, &bytes)
@@ -377,8 +391,14 @@ pub fn write_pcd(path: &Path, cloud: &PointCloud, data: PcdData) -> Result<()> {
 /// Encodes a cloud as PCD.
 pub fn pcd_bytes(cloud: &PointCloud, data: PcdData) -> Vec<u8> {
     let n = cloud.len();
-    let with_i = cloud.intensity.is_some();
-    let fields = if with_i { 4 } else { 3 };
+    let mut names = vec!["x", "y", "z"];
+    if cloud.intensity.is_some() {
+        names.push("intensity");
+    }
+    if cloud.times.is_some() {
+        names.push("time");
+    }
+    let fields = names.len();
     let vp = &cloud.viewpoint;
     let (t, q) = (vp.translation.vector, vp.rotation.quaternion());
     let mut out = Vec::new();
@@ -387,22 +407,22 @@ pub fn pcd_bytes(cloud: &PointCloud, data: PcdData) -> Vec<u8> {
         PcdData::Binary => "binary",
         PcdData::BinaryCompressed => "binary_compressed",
     };
-    let (names, sizes, types, counts) = if with_i {
-        ("x y z intensity", "4 4 4 4", "F F F F", "1 1 1 1")
-    } else {
-        ("x y z", "4 4 4", "F F F", "1 1 1")
-    };
+    let repeat = |word: &str| vec![word; fields].join(" ");
+    let (sizes, types, counts) = (repeat("4"), repeat("F"), repeat("1"));
+    let names = names.join(" ");
     let _ = write!(
         out,
         "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS {names}\nSIZE {sizes}\nTYPE {types}\nCOUNT {counts}\n\
          WIDTH {n}\nHEIGHT 1\nVIEWPOINT {} {} {} {} {} {} {}\nPOINTS {n}\nDATA {kind}\n",
         t.x, t.y, t.z, q.w, q.i, q.j, q.k
     );
+    let time_field = if cloud.intensity.is_some() { 4 } else { 3 };
     let value = |i: usize, k: usize| -> f32 {
         match k {
             0 => cloud.points[i].x,
             1 => cloud.points[i].y,
             2 => cloud.points[i].z,
+            k if k == time_field => cloud.times.as_ref().map_or(0.0, |v| v[i]),
             _ => cloud.intensity.as_ref().map_or(0.0, |v| v[i]),
         }
     };

@@ -52,12 +52,15 @@ pub struct CornerLabel {
     pub depth_m: f64,
 }
 
-/// The visible corners in the view of `camera` at `world_from_camera`.
+/// The visible corners in the view of `camera` at `world_from_camera`, at
+/// world time `time` (people walking in front of a corner hide it; glass
+/// does not).
 pub fn visible_corners(
     world: &World,
     camera: &PinholeCamera,
     world_from_camera: &Pose3,
     config: &LabelConfig,
+    time: f64,
 ) -> Vec<CornerLabel> {
     let camera_from_world = world_from_camera.inverse();
     let eye = Point3::from(world_from_camera.translation.vector);
@@ -78,7 +81,7 @@ pub fn visible_corners(
         let to = p_world - eye;
         let distance = to.norm();
         let tolerance = (0.01 * distance).max(0.02);
-        if world.cast(&eye, &(to / distance), 1e-4, distance - tolerance).is_some() {
+        if world.blocked(&eye, &(to / distance), 1e-4, distance - tolerance, time) {
             continue;
         }
         let size = config.box_size_px;

@@ -9,12 +9,17 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::block::Block;
+use super::people::Walker;
 use super::surface::{Material, Pattern, Surface, SurfaceKind};
 use crate::math::{Point3, Vec3};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct WorldConfig {
+    /// 0: the paper's building, shaped by the fields below; N >= 1: generated
+    /// building N (its own levels, ramps and rooms; the fields below unused).
+    pub building: u32,
     /// Floor heights of levels 1, 2 and 3 above the level-1 floor.
     pub level_heights_m: [f64; 3],
     /// Slope of the two ramps between the levels.
@@ -27,12 +32,21 @@ pub struct WorldConfig {
 
 impl Default for WorldConfig {
     fn default() -> Self {
-        Self { level_heights_m: [0.0, 0.5, 1.0], ramp_slope_deg: 10.0, ceiling_height_m: 3.5, corridor_width_m: 2.2 }
+        Self {
+            building: 0,
+            level_heights_m: [0.0, 0.5, 1.0],
+            ramp_slope_deg: 10.0,
+            ceiling_height_m: 3.5,
+            corridor_width_m: 2.2,
+        }
     }
 }
 
 impl WorldConfig {
     pub fn validate(&self) -> Result<(), String> {
+        if self.building > super::building::MAX_BUILDING {
+            return Err(format!("building {} outside 0..={}", self.building, super::building::MAX_BUILDING));
+        }
         let [h0, h1, h2] = self.level_heights_m;
         if !(h0.is_finite() && h1 > h0 + 0.05 && h2 > h1 + 0.05) {
             return Err(format!("level heights must rise by at least 5 cm each: {:?}", self.level_heights_m));
@@ -86,8 +100,12 @@ pub struct Region {
     pub x: [f64; 2],
     pub y: [f64; 2],
     pub floor: Floor,
-    /// Level index 0..3 of a flat region; `None` for a ramp.
+    /// Level index of a flat region; `None` for a ramp.
     pub level: Option<usize>,
+    /// Ceiling height above the floor under it; `None`: the layout's one
+    /// flat ceiling (`WorldConfig::ceiling_height_m`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ceiling_m: Option<f64>,
 }
 
 impl Region {
@@ -159,8 +177,14 @@ pub struct Light {
 #[derive(Debug, Clone)]
 pub struct Layout {
     pub config: WorldConfig,
+    /// Floor height of each level, lowest first.
+    pub levels: Vec<f64>,
     pub regions: Vec<Region>,
     pub obstacles: Vec<Obstacle>,
+    /// Pillars, partitions, glass, crates and furniture.
+    pub blocks: Vec<Block>,
+    /// People walking through.
+    pub walkers: Vec<Walker>,
     pub surfaces: Vec<Surface>,
     pub corners: Vec<Corner>,
     pub lights: Vec<Light>,
@@ -187,6 +211,7 @@ impl Layout {
             y,
             floor,
             level,
+            ceiling_m: None,
         };
         let regions = vec![
             region("level 1 hall", [-1.5, 6.0], [-2.5, 2.5], flat(h0), Some(0)),
@@ -224,8 +249,11 @@ impl Layout {
         let route = vec![[0.0, 0.0], [turn_x, 0.0], [turn_x, 10.0 + l2]];
         let mut layout = Self {
             config: config.clone(),
+            levels: config.level_heights_m.to_vec(),
             regions,
             obstacles,
+            blocks: Vec::new(),
+            walkers: Vec::new(),
             surfaces: Vec::new(),
             corners: Vec::new(),
             lights: Vec::new(),
@@ -245,12 +273,26 @@ impl Layout {
         self.regions.iter().find(|r| r.contains(x, y))
     }
 
+    /// The ceiling height over `(x, y)` in region `r`.
+    pub fn ceiling_of(&self, r: &Region, x: f64, y: f64) -> f64 {
+        match r.ceiling_m {
+            None => self.config.ceiling_height_m,
+            Some(h) => r.floor_height(x, y) + h,
+        }
+    }
+
+    /// The ceiling height over `(x, y)`, or `None` outside the free space.
+    pub fn ceiling_height(&self, x: f64, y: f64) -> Option<f64> {
+        self.region_at(x, y).map(|r| self.ceiling_of(r, x, y))
+    }
+
     fn inside_any(&self, x: f64, y: f64) -> bool {
         self.regions.iter().any(|r| r.strictly_contains(x, y))
     }
 
-    fn build_surfaces_and_corners(&mut self, seed: u64) {
-        let ceiling = self.config.ceiling_height_m;
+    /// Derives the surfaces, corners and lights from the regions,
+    /// obstacles and blocks.
+    pub(super) fn build_surfaces_and_corners(&mut self, seed: u64) {
         let mut surfaces = Vec::new();
         let palette =
             [[0.85, 0.82, 0.74], [0.72, 0.80, 0.86], [0.88, 0.78, 0.70], [0.78, 0.85, 0.75], [0.90, 0.88, 0.84]];
@@ -271,7 +313,7 @@ impl Layout {
             };
             let material = Material { base, pattern, seed: mix(seed ^ (100 + ri as u64)) };
             surfaces.push(Surface::new(kind, floor, Vec3::z(), u_hint, material));
-            let ceil: Vec<Point3> = corners.iter().map(|&[x, y]| Point3::new(x, y, ceiling)).collect();
+            let ceil: Vec<Point3> = corners.iter().map(|&[x, y]| Point3::new(x, y, self.ceiling_of(r, x, y))).collect();
             let material = Material { base: [0.92, 0.92, 0.90], pattern: Pattern::Panels { size_m: 1.2 }, seed: 0 };
             surfaces.push(Surface::new(SurfaceKind::Ceiling, ceil, -Vec3::z(), Vec3::x(), material));
         }
@@ -317,8 +359,8 @@ impl Layout {
                     let verts = vec![
                         Point3::new(xa, ya, r.floor_height(xa, ya)),
                         Point3::new(xb, yb, r.floor_height(xb, yb)),
-                        Point3::new(xb, yb, ceiling),
-                        Point3::new(xa, ya, ceiling),
+                        Point3::new(xb, yb, self.ceiling_of(r, xb, yb)),
+                        Point3::new(xa, ya, self.ceiling_of(r, xa, ya)),
                     ];
                     let inward = if along_x { Vec3::new(0.0, -out, 0.0) } else { Vec3::new(-out, 0.0, 0.0) };
                     let u_hint = if along_x { Vec3::x() } else { Vec3::y() };
@@ -347,6 +389,7 @@ impl Layout {
         for p in &x_wall_ends {
             if y_wall_ends.iter().any(|q| (p[0] - q[0]).abs() < EPS && (p[1] - q[1]).abs() < EPS) {
                 let floor = self.floor_height(p[0], p[1]).unwrap_or(0.0);
+                let ceiling = self.ceiling_height(p[0], p[1]).unwrap_or(self.config.ceiling_height_m);
                 push_corner(&mut corners, [p[0], p[1], floor], CornerKind::Floor);
                 push_corner(&mut corners, [p[0], p[1], ceiling], CornerKind::Ceiling);
             }
@@ -412,11 +455,21 @@ impl Layout {
             }
         }
 
+        for (bi, b) in self.blocks.iter().enumerate() {
+            surfaces.extend(b.surfaces(mix(seed ^ (7000 + bi as u64))));
+            for c in b.corners() {
+                push_corner(&mut corners, c.position, c.kind);
+            }
+        }
+
         // A light under the ceiling over the middle of each region.
         self.lights = self
             .regions
             .iter()
-            .map(|r| Light { position: [(r.x[0] + r.x[1]) / 2.0, (r.y[0] + r.y[1]) / 2.0, ceiling - 0.1] })
+            .map(|r| {
+                let (x, y) = ((r.x[0] + r.x[1]) / 2.0, (r.y[0] + r.y[1]) / 2.0);
+                Light { position: [x, y, self.ceiling_of(r, x, y) - 0.1] }
+            })
             .collect();
         self.surfaces = surfaces;
         self.corners = corners;

@@ -1,17 +1,22 @@
 //! A Quanergy M8-like spinning LIDAR: 8 beams between -17 and +3 degrees of
 //! elevation, a full turn of azimuth, Gaussian range noise and random
 //! dropouts. Points are returned in the LIDAR frame (x forward, y left, z up).
+//!
+//! A scan is either instantaneous (the paper's setting) or a sweep: the head
+//! turns once over `sweep_period_s`, each firing in the LIDAR frame of its
+//! own moment and stamped with its time after the sweep's start, so the
+//! robot's motion during the turn distorts the cloud as on a real robot.
 
 use nalgebra::Point3 as P3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::World;
 use super::layout::{mix, unit};
 use super::render::gaussian;
 use super::surface::SurfaceKind;
+use super::{Seen, World};
 use crate::formats::PointCloud;
-use crate::math::{Pose3, Vec3};
+use crate::math::{Point3, Pose3, Vec3};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -25,6 +30,10 @@ pub struct LidarConfig {
     pub dropout: f64,
     pub min_range_m: f64,
     pub max_range_m: f64,
+    /// Time of one turn of the head; 0 fires every azimuth at once.
+    pub sweep_period_s: f64,
+    /// Fraction of the beams that meet glass and pass through it.
+    pub glass_pass: f64,
 }
 
 impl Default for LidarConfig {
@@ -38,6 +47,8 @@ impl Default for LidarConfig {
             dropout: 0.02,
             min_range_m: 0.3,
             max_range_m: 100.0,
+            sweep_period_s: 0.0,
+            glass_pass: 0.7,
         }
     }
 }
@@ -59,6 +70,12 @@ impl LidarConfig {
         if !(self.range_noise_m >= 0.0 && (0.0..1.0).contains(&self.dropout) && self.min_range_m < self.max_range_m) {
             return Err("range noise must be >= 0, dropout in 0..1 and min range < max range".into());
         }
+        if !(self.sweep_period_s >= 0.0 && self.sweep_period_s <= 1.0) {
+            return Err(format!("sweep period {} s outside 0..1", self.sweep_period_s));
+        }
+        if !(0.0..=1.0).contains(&self.glass_pass) {
+            return Err(format!("glass pass fraction {} outside 0..1", self.glass_pass));
+        }
         Ok(())
     }
 
@@ -77,16 +94,44 @@ impl LidarConfig {
     }
 }
 
-/// One scan from `world_from_lidar`; `key` seeds its noise and dropouts.
-pub fn scan(world: &World, config: &LidarConfig, world_from_lidar: &Pose3, key: u64) -> PointCloud {
+/// One instantaneous scan from `world_from_lidar` at world time `time`;
+/// `key` seeds its noise and dropouts.
+pub fn scan(world: &World, config: &LidarConfig, world_from_lidar: &Pose3, time: f64, key: u64) -> PointCloud {
+    fire(world, config, &|_| (*world_from_lidar, time), key)
+}
+
+/// One sweep that starts at world time `start`: the firing at azimuth step
+/// `k` of `n` happens at `start + k / n * sweep_period_s`, from
+/// `world_from_lidar(that time)`, and its point keeps that time after
+/// `start` (`PointCloud::times`).
+pub fn sweep(
+    world: &World,
+    config: &LidarConfig,
+    world_from_lidar: &(dyn Fn(f64) -> Pose3 + Sync),
+    start: f64,
+    key: u64,
+) -> PointCloud {
+    let steps = (360.0 / config.azimuth_step_deg).round() as usize;
+    let period = config.sweep_period_s;
+    let column_time = |k: usize| period * k as f64 / steps as f64;
+    let mut cloud = fire(world, config, &|k| (world_from_lidar(start + column_time(k)), start + column_time(k)), key);
+    cloud.times = Some(cloud.times.take().unwrap_or_default());
+    cloud
+}
+
+/// Fires every azimuth step `k` from the pose and world time `at(k)` gives.
+/// Clouds from more than one pose carry each point's time after the first
+/// firing.
+fn fire(world: &World, config: &LidarConfig, at: &(dyn Fn(usize) -> (Pose3, f64) + Sync), key: u64) -> PointCloud {
     let elevations: Vec<f64> = config.elevations_deg().iter().map(|e| e.to_radians()).collect();
     let steps = (360.0 / config.azimuth_step_deg).round() as usize;
-    let origin = nalgebra::Point3::from(world_from_lidar.translation.vector);
-    let returns: Vec<(P3<f32>, f32)> = (0..steps)
+    let start = at(0).1;
+    let returns: Vec<(P3<f32>, f32, f32)> = (0..steps)
         .into_par_iter()
         .flat_map_iter(|k| {
             let azimuth = (k as f64 * config.azimuth_step_deg).to_radians();
-            let origin = &origin;
+            let (world_from_lidar, time) = at(k);
+            let origin = nalgebra::Point3::from(world_from_lidar.translation.vector);
             elevations.iter().enumerate().filter_map(move |(b, &el)| {
                 let id = mix(key ^ ((k * 1024 + b) as u64));
                 if unit(id) < config.dropout {
@@ -94,22 +139,62 @@ pub fn scan(world: &World, config: &LidarConfig, world_from_lidar: &Pose3, key: 
                 }
                 let dir_lidar = Vec3::new(el.cos() * azimuth.cos(), el.cos() * azimuth.sin(), el.sin());
                 let dir = world_from_lidar.rotation * dir_lidar;
-                let hit = world.cast(origin, &dir, config.min_range_m, config.max_range_m)?;
-                let range = hit.t + config.range_noise_m * gaussian(id ^ 0x1d) as f64;
+                let (t, intensity) = first_return(world, config, &origin, &dir, time, id)?;
+                let range = t + config.range_noise_m * gaussian(id ^ 0x1d) as f64;
                 let p = dir_lidar * range;
-                let surface = &world.layout.surfaces[hit.surface];
+                Some((P3::new(p.x as f32, p.y as f32, p.z as f32), intensity as f32, (time - start) as f32))
+            })
+        })
+        .collect();
+    let mut points = Vec::with_capacity(returns.len());
+    let mut intensity = Vec::with_capacity(returns.len());
+    let mut times = Vec::with_capacity(returns.len());
+    for (p, i, t) in returns {
+        points.push(p);
+        intensity.push(i);
+        times.push(t);
+    }
+    let mut cloud = PointCloud::new(points, Some(intensity));
+    if times.iter().any(|&t| t != 0.0) {
+        cloud.times = Some(times);
+    }
+    cloud
+}
+
+/// The range and intensity of a beam's return: glass lets `glass_pass` of
+/// the beams through, people return like clothing.
+fn first_return(
+    world: &World,
+    config: &LidarConfig,
+    origin: &Point3,
+    dir: &Vec3,
+    time: f64,
+    id: u64,
+) -> Option<(f64, f64)> {
+    let mut t_min = config.min_range_m;
+    for layer in 0..4u64 {
+        let hit = world.sense(origin, dir, t_min, config.max_range_m, time)?;
+        let (base, normal) = match hit.seen {
+            Seen::Person(_) => (0.3, hit.normal),
+            Seen::Surface(index) => {
+                let surface = &world.layout.surfaces[index];
+                if surface.kind == SurfaceKind::Glass && unit(id ^ (0x61a55 + layer)) < config.glass_pass {
+                    t_min = hit.t + 1e-4;
+                    continue;
+                }
                 // Reflectivity by material, dimmed at grazing incidence.
                 let base = match surface.kind {
                     SurfaceKind::Floor | SurfaceKind::Ramp => 0.35,
                     SurfaceKind::Wall => 0.6,
                     SurfaceKind::Ceiling => 0.7,
                     SurfaceKind::BoxSide | SurfaceKind::BoxTop => 0.45,
+                    SurfaceKind::Furniture => 0.4,
+                    SurfaceKind::Glass => 0.15,
                 };
-                let intensity = base * surface.normal.dot(&dir).abs().max(0.05);
-                Some((P3::new(p.x as f32, p.y as f32, p.z as f32), intensity as f32))
-            })
-        })
-        .collect();
-    let (points, intensity): (Vec<_>, Vec<_>) = returns.into_iter().unzip();
-    PointCloud::new(points, Some(intensity))
+                (base, surface.normal)
+            }
+        };
+        return Some((hit.t, base * normal.dot(dir).abs().max(0.05)));
+    }
+    None
 }

@@ -27,6 +27,9 @@ pub struct MotionConfig {
     pub gyro_bias_rps: f64,
     pub accel_noise_mps2: f64,
     pub gyro_noise_rps: f64,
+    /// Extra relative speed the wheels measure on a 10 degree ramp (they
+    /// slip when climbing or braking), in proportion to the slope.
+    pub ramp_slip: f64,
 }
 
 impl Default for MotionConfig {
@@ -42,6 +45,7 @@ impl Default for MotionConfig {
             gyro_bias_rps: 0.002,
             accel_noise_mps2: 0.02,
             gyro_noise_rps: 0.002,
+            ramp_slip: 0.0,
         }
     }
 }
@@ -58,6 +62,7 @@ impl MotionConfig {
             gyro_bias_rps: 0.0,
             accel_noise_mps2: 0.0,
             gyro_noise_rps: 0.0,
+            ramp_slip: 0.0,
             ..Self::default()
         }
     }
@@ -76,6 +81,7 @@ impl MotionConfig {
             self.gyro_bias_rps,
             self.accel_noise_mps2,
             self.gyro_noise_rps,
+            self.ramp_slip,
         ];
         if noises.iter().any(|n| !(n.is_finite() && *n >= 0.0)) {
             return Err("noise and error magnitudes must be finite and >= 0".into());
@@ -112,8 +118,10 @@ pub fn simulate_odometry(
         let (t0, t1) = ((k - 1) as f64 * dt, k as f64 * dt);
         let (a, b) = (world_from_robot(t0), world_from_robot(t1));
         let v_true = (b.translation.vector - a.translation.vector).norm() / dt;
+        let slope = (b.rotation * Vec3::x()).z.clamp(-1.0, 1.0).asin().abs();
+        let slip = 1.0 + config.ramp_slip * slope / 10f64.to_radians();
         let w_true = wrap(heading(&b) - heading(&a)) / dt;
-        let v = v_true * scale + config.speed_noise_mps * gaussian(mix(key ^ (k as u64) << 8 ^ 3)) as f64;
+        let v = v_true * scale * slip + config.speed_noise_mps * gaussian(mix(key ^ (k as u64) << 8 ^ 3)) as f64;
         let omega = w_true + bias + config.yaw_rate_noise_rps * gaussian(mix(key ^ (k as u64) << 8 ^ 4)) as f64;
         // Midpoint integration of the unicycle model.
         let mid = state.yaw + omega * dt / 2.0;

@@ -6,9 +6,10 @@
 use image::RgbImage;
 use rayon::prelude::*;
 
-use super::World;
 use super::layout::{mix, unit};
+use super::surface::SurfaceKind;
 use super::surface::{Pattern, Surface};
+use super::{Seen, World};
 use crate::camera::PinholeCamera;
 use crate::math::{Point3, Pose3, Vec3};
 
@@ -42,8 +43,14 @@ impl Lighting {
 }
 
 /// Renders the view of `camera` at `world_from_camera` (camera frame: x
-/// right, y down, z forward).
-pub fn render(world: &World, camera: &PinholeCamera, world_from_camera: &Pose3, lighting: &Lighting) -> RgbImage {
+/// right, y down, z forward) at world time `time` (where the people are).
+pub fn render(
+    world: &World,
+    camera: &PinholeCamera,
+    world_from_camera: &Pose3,
+    lighting: &Lighting,
+    time: f64,
+) -> RgbImage {
     let (w, h) = (camera.width as usize, camera.height as usize);
     let origin = Point3::from(world_from_camera.translation.vector);
     let rotation = world_from_camera.rotation;
@@ -52,7 +59,7 @@ pub fn render(world: &World, camera: &PinholeCamera, world_from_camera: &Pose3, 
     pixels.par_chunks_mut(w * 3).enumerate().for_each(|(row, out)| {
         for col in 0..w {
             let dir = rotation * camera.ray(col as f64 + 0.5, row as f64 + 0.5);
-            let colour = shade(world, &origin, &dir, lighting);
+            let colour = shade(world, &origin, &dir, lighting, time);
             let key = lighting.noise_seed ^ ((row * w + col) as u64);
             for (c, value) in colour.iter().enumerate() {
                 let noise = quick_gaussian(mix(key.wrapping_mul(3).wrapping_add(c as u64)));
@@ -64,15 +71,44 @@ pub fn render(world: &World, camera: &PinholeCamera, world_from_camera: &Pose3, 
     RgbImage::from_raw(w as u32, h as u32, pixels).expect("buffer sized to the image")
 }
 
-fn shade(world: &World, origin: &Point3, dir: &Vec3, lighting: &Lighting) -> [f32; 3] {
-    let Some(hit) = world.cast(origin, dir, 1e-4, 200.0) else {
-        return [0.0; 3];
-    };
-    let surface = &world.layout.surfaces[hit.surface];
-    let p = origin + dir * hit.t;
-    let albedo = albedo(surface, &p);
-    // Seen from either side: light the side facing the camera.
-    let n = if surface.normal.dot(dir) > 0.0 { -surface.normal } else { surface.normal };
+/// The colour seen along a ray: the nearest opaque surface or person, seen
+/// through any glass in front of it (each pane keeps most of the light and
+/// adds a faint tint).
+fn shade(world: &World, origin: &Point3, dir: &Vec3, lighting: &Lighting, time: f64) -> [f32; 3] {
+    let mut t_min = 1e-4;
+    let mut colour = [0.0f32; 3];
+    let mut weight = 1.0f32;
+    for _ in 0..4 {
+        let Some(hit) = world.sense(origin, dir, t_min, 200.0, time) else { break };
+        let p = origin + dir * hit.t;
+        // Seen from either side: light the side facing the camera.
+        let n = if hit.normal.dot(dir) > 0.0 { -hit.normal } else { hit.normal };
+        let light = lit(world, &p, &n, lighting);
+        match hit.seen {
+            Seen::Person(i) => {
+                let clothes = world.layout.walkers[i].colour;
+                return std::array::from_fn(|c| colour[c] + weight * clothes[c] * light);
+            }
+            Seen::Surface(i) => {
+                let surface = &world.layout.surfaces[i];
+                let albedo = albedo(surface, &p);
+                if surface.kind == SurfaceKind::Glass {
+                    for c in 0..3 {
+                        colour[c] += weight * 0.08 * albedo[c] * light;
+                    }
+                    weight *= 0.85;
+                    t_min = hit.t + 1e-4;
+                    continue;
+                }
+                return std::array::from_fn(|c| colour[c] + weight * (albedo[c] * light));
+            }
+        }
+    }
+    colour
+}
+
+/// Ambient plus Lambertian light from the lamps, with distance fall-off.
+fn lit(world: &World, p: &Point3, n: &Vec3, lighting: &Lighting) -> f32 {
     let mut light = lighting.ambient;
     for (lamp, intensity) in world.layout.lights.iter().zip(&lighting.intensities) {
         let to = Point3::from(lamp.position) - p;
@@ -80,7 +116,7 @@ fn shade(world: &World, origin: &Point3, dir: &Vec3, lighting: &Lighting) -> [f3
         let cos = (n.dot(&to) / d2.sqrt()).max(0.0);
         light += intensity * cos as f32 / (1.0 + d2 as f32 / 9.0);
     }
-    albedo.map(|a| a * light)
+    light
 }
 
 /// The surface colour at `p` (linear RGB, 0..1).
@@ -122,6 +158,8 @@ pub fn albedo(surface: &Surface, p: &Point3) -> [f32; 3] {
             let tape = (u.rem_euclid(0.6) - 0.3).abs() < 0.04;
             if tape { [0.75, 0.70, 0.55] } else { scale(0.9 + 0.1 * value_noise(u * 10.0, v * 10.0, m.seed)) }
         }
+        Pattern::Wood => scale(0.85 + 0.15 * value_noise(u * 2.0, v * 40.0, m.seed)),
+        Pattern::Glass => base,
     }
 }
 

@@ -14,6 +14,10 @@ pub enum SurfaceKind {
     Ceiling,
     BoxSide,
     BoxTop,
+    /// Tables, chairs, shelves: clutter, never landmarks.
+    Furniture,
+    /// Seen through by the camera, partly passed by the LIDAR.
+    Glass,
 }
 
 /// How a surface looks: a base colour (linear RGB, 0..1) and a pattern.
@@ -37,6 +41,10 @@ pub enum Pattern {
     Stripes { period_m: f64 },
     /// Cardboard with a band of tape.
     Cardboard,
+    /// Wood grain along u.
+    Wood,
+    /// Clear glass: a faint tint over what lies behind.
+    Glass,
 }
 
 #[derive(Debug, Clone)]

@@ -33,6 +33,40 @@ enum Command {
     Planes(PlanesArgs),
     /// Milliseconds per frame of each stage on M8-like scans and on dense 100k-point scans.
     Bench(BenchArgs),
+    /// Generated buildings at several speeds: fused, odometry/IMU and LIDAR-odometry peers side by side.
+    Benchmark(BenchmarkArgs),
+}
+
+#[derive(clap::Args)]
+struct BenchmarkArgs {
+    /// Folder of the generated data, the runs and the tables (reused when run again).
+    #[arg(long)]
+    out: PathBuf,
+    /// Buildings: `1-5`, `2,4` (default 1-5; with --quick 1,2).
+    #[arg(long)]
+    buildings: Option<String>,
+    /// Speeds in m/s (default 0.05,0.5,1.0; with --quick 1.0).
+    #[arg(long)]
+    speeds: Option<String>,
+    /// Scans per sequence at most, at 10 Hz (default 600; with --quick 150).
+    #[arg(long)]
+    max_scans: Option<usize>,
+    /// Labelled images per building for the detector's AP@0.5 (default 60; with --quick 16).
+    #[arg(long)]
+    detection_images: Option<usize>,
+    /// A few minutes instead of about an hour: two buildings, one speed, short sequences.
+    #[arg(long)]
+    quick: bool,
+    #[arg(long, default_value = "checkpoints/faster-rcnn")]
+    checkpoint: PathBuf,
+    #[arg(long, value_enum, default_value_t = infer::backend::CpuBackend::Flex)]
+    backend: infer::backend::CpuBackend,
+    /// Localization settings as JSON (see config.json of a run).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Print the table as JSON instead of Markdown.
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(clap::Args)]
@@ -179,6 +213,7 @@ fn main() {
         Command::Run(args) => run(&args),
         Command::Inspect(args) => inspect(&args),
         Command::Bench(args) => bench(&args),
+        Command::Benchmark(args) => benchmark(&args),
     };
     if let Err(error) = outcome {
         eprintln!("error: {error:#}");
@@ -324,14 +359,47 @@ fn planes(args: &PlanesArgs) -> Result<()> {
     Ok(())
 }
 
-fn run(args: &RunArgs) -> Result<()> {
-    let mut config: LocalizeConfig = match &args.config {
+fn read_config(path: Option<&Path>) -> Result<LocalizeConfig> {
+    Ok(match path {
         Some(path) => {
             let text = datasets::atomic::read_text(path)?;
             serde_json::from_str(&text).with_context(|| format!("{}: not a localization config", path.display()))?
         }
         None => LocalizeConfig::default(),
-    };
+    })
+}
+
+fn benchmark(args: &BenchmarkArgs) -> Result<()> {
+    use localize::benchmark::{BenchmarkPlan, parse_buildings, parse_speeds, run_benchmark, write_tables};
+    let mut plan = if args.quick { BenchmarkPlan::quick() } else { BenchmarkPlan::standard() };
+    if let Some(text) = &args.buildings {
+        plan.buildings = parse_buildings(text).map_err(|m| anyhow::anyhow!("--buildings: {m}"))?;
+    }
+    if let Some(text) = &args.speeds {
+        plan.speeds_mps = parse_speeds(text).map_err(|m| anyhow::anyhow!("--speeds: {m}"))?;
+    }
+    if let Some(n) = args.max_scans {
+        plan.max_scans = n;
+    }
+    if let Some(n) = args.detection_images {
+        plan.detection_images = n;
+    }
+    plan.validate().map_err(|m| anyhow::anyhow!("invalid benchmark: {m}"))?;
+    let config = read_config(args.config.as_deref())?;
+    let show = !std::env::var("CI").is_ok_and(|v| v == "true");
+    let rows = run_benchmark(&args.out, &plan, &args.checkpoint, args.backend.device(), &config, show)?;
+    write_tables(&args.out, &plan, &rows)?;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&rows)?);
+    } else {
+        print!("{}", localize::benchmark::markdown(&rows));
+        println!("errors in mm; wrote benchmark.md, benchmark.csv and benchmark.json to {}", args.out.display());
+    }
+    Ok(())
+}
+
+fn run(args: &RunArgs) -> Result<()> {
+    let mut config = read_config(args.config.as_deref())?;
     if let Some(t) = args.image_tolerance {
         config.sync.image_tolerance_s = t;
     }
@@ -400,7 +468,7 @@ fn bench_scans(
             let (xy, heading) = route.at(s);
             let robot = datasets::world::route::pose_on_floor(&world.layout, xy, heading)
                 .context("the route left the free space")?;
-            Ok(datasets::world::lidar::scan(world, lidar, &(robot * rig.robot_from_lidar), k as u64))
+            Ok(datasets::world::lidar::scan(world, lidar, &(robot * rig.robot_from_lidar), 0.0, k as u64))
         })
         .collect()
 }

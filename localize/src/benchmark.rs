@@ -1,0 +1,352 @@
+//! `localize benchmark`: generated buildings the detector and the settings
+//! were never tuned on, driven at several speeds with a robot's sensor
+//! timing, localized by the fused pipeline and by odometry/IMU alone, beside
+//! the LIDAR odometry peers whose trajectories a script left in the folder.
+//! One table out, as Markdown, CSV and JSON.
+//!
+//! Layout of `--out`: `building-N/speed-S/` holds the generated data
+//! (`sequence/`, `detection/`, `preview/topdown.png`), `run/` the fused run's
+//! outputs and `peers/NAME.txt` (TUM, robot frame) any peer's trajectory.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use datasets::formats::read_trajectory;
+use datasets::generate::{DatagenConfig, generate};
+use indicatif::{ProgressBar, ProgressStyle};
+use serde::{Deserialize, Serialize};
+
+use crate::config::LocalizeConfig;
+use crate::corner_source::CornerSource;
+use crate::error::{LocalizeError, Result};
+use crate::eval::{Alignment, ErrorSummary, compare};
+use crate::run::{metrics, run_sequence, write_outputs};
+use crate::sequence::RecordedSequence;
+
+/// The LIDAR odometry systems `scripts/lidar_peers.py` runs.
+pub const PEERS: [&str; 2] = ["kiss-icp", "genz-icp"];
+
+/// What the benchmark runs.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BenchmarkPlan {
+    pub buildings: Vec<u32>,
+    pub speeds_mps: Vec<f64>,
+    /// Scans per sequence at most (10 per second of driving).
+    pub max_scans: usize,
+    /// Labelled images per building for the detector's AP@0.5.
+    pub detection_images: usize,
+    pub seed: u64,
+}
+
+impl BenchmarkPlan {
+    /// Five buildings at three speeds, a minute of driving each.
+    pub fn standard() -> Self {
+        Self {
+            buildings: (1..=5).collect(),
+            speeds_mps: vec![0.05, 0.5, 1.0],
+            max_scans: 600,
+            detection_images: 60,
+            seed: 7,
+        }
+    }
+
+    /// Two buildings at one speed, 15 s each: a few minutes in all.
+    pub fn quick() -> Self {
+        Self { buildings: vec![1, 2], speeds_mps: vec![1.0], max_scans: 150, detection_images: 16, seed: 7 }
+    }
+
+    pub fn validate(&self) -> std::result::Result<(), String> {
+        if self.buildings.is_empty() || self.speeds_mps.is_empty() {
+            return Err("at least one building and one speed".into());
+        }
+        if let Some(b) = self.buildings.iter().find(|&&b| b == 0 || b > datasets::world::building::MAX_BUILDING) {
+            return Err(format!(
+                "building {b} is not a generated building (1..={})",
+                datasets::world::building::MAX_BUILDING
+            ));
+        }
+        if let Some(s) = self.speeds_mps.iter().find(|s| !(s.is_finite() && **s >= 0.05 && **s <= 1.5)) {
+            return Err(format!("speed {s} m/s outside 0.05..1.5"));
+        }
+        if !(10..=3000).contains(&self.max_scans) {
+            return Err(format!("max scans {} outside 10..3000", self.max_scans));
+        }
+        if self.detection_images > 2000 {
+            return Err(format!("{} detection images is more than 2000", self.detection_images));
+        }
+        Ok(())
+    }
+
+    /// The data settings of one sequence; the first speed of a building also
+    /// renders its labelled images.
+    pub fn datagen(&self, building: u32, speed: f64, first_speed: bool) -> DatagenConfig {
+        let mut config = DatagenConfig::for_building(building);
+        config.seed = self.seed;
+        config.sequence.speed_mps = speed;
+        config.sequence.max_scans = Some(self.max_scans);
+        let images = if first_speed { self.detection_images } else { 0 };
+        config.detection.images = images;
+        config.detection.train = 0;
+        config
+    }
+}
+
+/// One sequence's figures.
+#[derive(Debug, Clone, Serialize)]
+pub struct BenchmarkRow {
+    pub building: u32,
+    pub speed_mps: f64,
+    pub levels: usize,
+    pub scans: usize,
+    pub distance_m: f64,
+    pub fused: ErrorSummary,
+    pub odometry_imu: ErrorSummary,
+    /// Frames whose pose the corners or planes corrected.
+    pub corrected_frames: usize,
+    pub ms_per_frame: f64,
+    /// The detector's AP@0.5 on the building's own labelled images.
+    pub ap50: Option<f64>,
+    /// Each peer's errors, when its trajectory is in the folder.
+    pub peers: Vec<(String, Option<ErrorSummary>)>,
+}
+
+fn sequence_dir(out: &Path, building: u32, speed: f64) -> PathBuf {
+    out.join(format!("building-{building}")).join(format!("speed-{speed}"))
+}
+
+/// Generates what is missing (a folder whose `benchmark-data.json` holds the
+/// same settings is reused), runs every sequence and returns the rows.
+pub fn run_benchmark(
+    out: &Path,
+    plan: &BenchmarkPlan,
+    checkpoint: &Path,
+    device: burn::prelude::Device,
+    config: &LocalizeConfig,
+    show_progress: bool,
+) -> Result<Vec<BenchmarkRow>> {
+    plan.validate().map_err(LocalizeError::Config)?;
+    let cases: Vec<(u32, f64, bool)> = plan
+        .buildings
+        .iter()
+        .flat_map(|&b| plan.speeds_mps.iter().enumerate().map(move |(i, &s)| (b, s, i == 0)))
+        .collect();
+    let bar = if show_progress { ProgressBar::new(cases.len() as u64 * 2) } else { ProgressBar::hidden() };
+    bar.set_style(
+        ProgressStyle::with_template("benchmark [{elapsed_precise}] {bar:30} {pos}/{len} steps ({eta}) {msg}")
+            .expect("static template"),
+    );
+    let mut source = CornerSource::detector(checkpoint, device.clone(), config.fusion.min_score)?;
+    let detector = infer::detector::Detector::load(checkpoint, device)
+        .map_err(|e| LocalizeError::Detector { path: checkpoint.to_path_buf(), message: e.to_string() })?;
+    let mut rows = Vec::new();
+    for (building, speed, first) in cases {
+        let dir = sequence_dir(out, building, speed);
+        let data = plan.datagen(building, speed, first);
+        bar.set_message(format!("building {building} at {speed} m/s: data"));
+        ensure_data(&dir, &data)?;
+        bar.inc(1);
+        bar.set_message(format!("building {building} at {speed} m/s: localizing"));
+        let sequence = RecordedSequence::open_with(&dir.join("sequence"), &config.sync)?;
+        let result = run_sequence(&sequence, &mut source, config, false)?;
+        let measured = metrics(&sequence, &result)?.ok_or_else(|| {
+            LocalizeError::Config(format!("{}: the ground truth does not overlap the run", dir.display()))
+        })?;
+        write_outputs(&dir.join("run"), config, &result, sequence_truth(&sequence), Some(&measured))?;
+        bar.inc(1);
+        let truth = sequence_truth(&sequence).expect("a generated sequence has ground truth");
+        let ap50 = if first && plan.detection_images > 0 {
+            let set =
+                infer::labeled::load_coco_set(&dir.join("detection").join("test.json"), &detector.config.preprocess)?;
+            Some(infer::eval::evaluate_set(&detector, &set, 4).ap50)
+        } else {
+            None
+        };
+        let distance_m =
+            truth.poses.windows(2).map(|w| (w[1].translation.vector - w[0].translation.vector).norm()).sum();
+        let peers = PEERS
+            .iter()
+            .map(|name| {
+                let path = dir.join("peers").join(format!("{name}.txt"));
+                let summary = path.is_file().then(|| peer_errors(&path, truth)).transpose()?;
+                Ok((name.to_string(), summary))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let levels = datasets::world::World::new(&data.world, 0).layout.levels.len();
+        rows.push(BenchmarkRow {
+            building,
+            speed_mps: speed,
+            levels,
+            scans: measured.frames,
+            distance_m,
+            fused: measured.fused.overall,
+            odometry_imu: measured.odometry_imu.overall,
+            corrected_frames: measured.fused_frames,
+            ms_per_frame: measured.mean_total_ms,
+            ap50,
+            peers,
+        });
+    }
+    bar.finish_and_clear();
+    // A building's AP is measured once, at its first speed.
+    let aps: Vec<(u32, Option<f64>)> = rows.iter().filter(|r| r.ap50.is_some()).map(|r| (r.building, r.ap50)).collect();
+    for row in &mut rows {
+        if row.ap50.is_none() {
+            row.ap50 = aps.iter().find(|(b, _)| *b == row.building).and_then(|(_, ap)| *ap);
+        }
+    }
+    Ok(rows)
+}
+
+fn sequence_truth(sequence: &RecordedSequence) -> Option<&datasets::formats::Trajectory> {
+    crate::sequence::SensorSequence::ground_truth(sequence)
+}
+
+/// The errors of a peer's trajectory (robot frame, world at the first scan).
+fn peer_errors(path: &Path, truth: &datasets::formats::Trajectory) -> Result<ErrorSummary> {
+    let (estimate, _) = read_trajectory(path)?;
+    estimate.check_increasing(path)?;
+    let comparison = compare(truth, &estimate, Alignment::None, 0.01)
+        .map_err(|e| LocalizeError::Config(format!("{}: {e}", path.display())))?;
+    Ok(comparison.summary)
+}
+
+/// Generates `dir` unless it holds a finished generation with `config`.
+fn ensure_data(dir: &Path, config: &DatagenConfig) -> Result<()> {
+    let marker = dir.join("benchmark-data.json");
+    if let Ok(text) = std::fs::read_to_string(&marker)
+        && serde_json::from_str::<DatagenConfig>(&text).is_ok_and(|c| c == *config)
+    {
+        return Ok(());
+    }
+    // A changed or unfinished generation starts from an empty folder.
+    let _ = std::fs::remove_file(&marker);
+    for part in ["sequence", "detection", "preview", "run"] {
+        let path = dir.join(part);
+        if path.exists() {
+            std::fs::remove_dir_all(&path).map_err(|e| datasets::DataError::io(&path, e))?;
+        }
+    }
+    generate(dir, config)?;
+    datasets::atomic::write_json(&marker, config)?;
+    Ok(())
+}
+
+fn fmt_mm(v: f64) -> String {
+    format!("{:.1}", v * 1000.0)
+}
+
+/// Parses a building list: `3`, `1-5`, `1,4,7` or `1-3,8`.
+pub fn parse_buildings(text: &str) -> std::result::Result<Vec<u32>, String> {
+    let mut out = Vec::new();
+    for part in text.split(',').map(str::trim) {
+        let number =
+            |s: &str| s.trim().parse::<u32>().map_err(|_| format!("`{s}` in `{text}` is not a building number"));
+        match part.split_once('-') {
+            Some((a, b)) => {
+                let (a, b) = (number(a)?, number(b)?);
+                if a > b || b - a > 1000 {
+                    return Err(format!("`{part}` is not a range of at most 1000 buildings"));
+                }
+                out.extend(a..=b);
+            }
+            None => out.push(number(part)?),
+        }
+    }
+    Ok(out)
+}
+
+/// Parses a speed list: `0.05,0.5,1.0`.
+pub fn parse_speeds(text: &str) -> std::result::Result<Vec<f64>, String> {
+    text.split(',')
+        .map(|s| s.trim().parse::<f64>().map_err(|_| format!("`{s}` in `{text}` is not a speed in m/s")))
+        .collect()
+}
+
+/// The table as Markdown: errors in millimetres.
+pub fn markdown(rows: &[BenchmarkRow]) -> String {
+    let mut out = String::from(
+        "| building | levels | speed m/s | scans | distance m | fused x | fused y | fused z | fused ATE | odom/IMU ATE |",
+    );
+    for p in PEERS {
+        let _ = write!(out, " {p} x | {p} y | {p} ATE |");
+    }
+    out.push_str(" corrected | ms/frame | AP@0.5 |\n|");
+    for _ in 0..(10 + 3 * PEERS.len() + 3) {
+        out.push_str("---:|");
+    }
+    out.push('\n');
+    for r in rows {
+        let _ = write!(
+            out,
+            "| {} | {} | {} | {} | {:.1} | {} | {} | {} | {} | {} |",
+            r.building,
+            r.levels,
+            r.speed_mps,
+            r.scans,
+            r.distance_m,
+            fmt_mm(r.fused.rmse_x),
+            fmt_mm(r.fused.rmse_y),
+            fmt_mm(r.fused.rmse_z),
+            fmt_mm(r.fused.ate_rmse),
+            fmt_mm(r.odometry_imu.ate_rmse)
+        );
+        for (_, peer) in &r.peers {
+            match peer {
+                Some(s) => {
+                    let _ = write!(out, " {} | {} | {} |", fmt_mm(s.rmse_x), fmt_mm(s.rmse_y), fmt_mm(s.ate_rmse));
+                }
+                None => out.push_str(" - | - | - |"),
+            }
+        }
+        let ap = r.ap50.map_or("-".to_string(), |a| format!("{a:.3}"));
+        let _ = writeln!(out, " {}/{} | {:.1} | {ap} |", r.corrected_frames, r.scans, r.ms_per_frame);
+    }
+    out
+}
+
+/// The table as CSV: errors in metres.
+pub fn csv(rows: &[BenchmarkRow]) -> String {
+    let mut out = String::from(
+        "building,levels,speed_mps,scans,distance_m,fused_rmse_x,fused_rmse_y,fused_rmse_z,fused_ate,odometry_imu_ate",
+    );
+    for p in PEERS {
+        let p = p.replace('-', "_");
+        let _ = write!(out, ",{p}_rmse_x,{p}_rmse_y,{p}_ate");
+    }
+    out.push_str(",corrected_frames,ms_per_frame,ap50\n");
+    for r in rows {
+        let _ = write!(
+            out,
+            "{},{},{},{},{:.3},{:.6},{:.6},{:.6},{:.6},{:.6}",
+            r.building,
+            r.levels,
+            r.speed_mps,
+            r.scans,
+            r.distance_m,
+            r.fused.rmse_x,
+            r.fused.rmse_y,
+            r.fused.rmse_z,
+            r.fused.ate_rmse,
+            r.odometry_imu.ate_rmse
+        );
+        for (_, peer) in &r.peers {
+            match peer {
+                Some(s) => {
+                    let _ = write!(out, ",{:.6},{:.6},{:.6}", s.rmse_x, s.rmse_y, s.ate_rmse);
+                }
+                None => out.push_str(",,,"),
+            }
+        }
+        let ap = r.ap50.map_or(String::new(), |a| format!("{a:.4}"));
+        let _ = writeln!(out, ",{},{:.2},{ap}", r.corrected_frames, r.ms_per_frame);
+    }
+    out
+}
+
+/// Writes `benchmark.md`, `benchmark.csv` and `benchmark.json` into `out`.
+pub fn write_tables(out: &Path, plan: &BenchmarkPlan, rows: &[BenchmarkRow]) -> Result<()> {
+    datasets::atomic::write_bytes(&out.join("benchmark.md"), markdown(rows).as_bytes())?;
+    datasets::atomic::write_bytes(&out.join("benchmark.csv"), csv(rows).as_bytes())?;
+    datasets::atomic::write_json(&out.join("benchmark.json"), &serde_json::json!({ "plan": plan, "rows": rows }))?;
+    Ok(())
+}

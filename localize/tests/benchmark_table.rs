@@ -1,0 +1,99 @@
+//! The benchmark's flags and tables: lists parse or fail with the bad part
+//! named, plans outside the supported ranges are refused, and the tables
+//! carry each figure in its unit (Markdown in mm, CSV in m).
+
+use localize::benchmark::{BenchmarkPlan, BenchmarkRow, csv, markdown, parse_buildings, parse_speeds};
+use localize::eval::ErrorSummary;
+
+#[test]
+fn building_and_speed_lists_parse_or_name_the_bad_part() {
+    assert_eq!(parse_buildings("1-5").unwrap(), vec![1, 2, 3, 4, 5]);
+    assert_eq!(parse_buildings("2, 4,7-8").unwrap(), vec![2, 4, 7, 8]);
+    assert!(parse_buildings("1-x").unwrap_err().contains("`x`"));
+    assert!(parse_buildings("5-1").unwrap_err().contains("5-1"));
+    assert!(parse_buildings("1-100000").is_err());
+    assert_eq!(parse_speeds("0.05,0.5,1.0").unwrap(), vec![0.05, 0.5, 1.0]);
+    assert!(parse_speeds("0.5,fast").unwrap_err().contains("`fast`"));
+}
+
+#[test]
+fn plans_outside_the_supported_ranges_are_refused() {
+    assert!(BenchmarkPlan::standard().validate().is_ok());
+    assert!(BenchmarkPlan::quick().validate().is_ok());
+    let with = |f: &dyn Fn(&mut BenchmarkPlan)| {
+        let mut plan = BenchmarkPlan::quick();
+        f(&mut plan);
+        plan.validate()
+    };
+    assert!(with(&|p| p.buildings = vec![0]).unwrap_err().contains("building 0"));
+    assert!(with(&|p| p.speeds_mps = vec![f64::NAN]).unwrap_err().contains("NaN"));
+    assert!(with(&|p| p.speeds_mps = vec![3.0]).is_err());
+    assert!(with(&|p| p.max_scans = 5).is_err());
+    assert!(with(&|p| p.buildings.clear()).is_err());
+    // Generated buildings get a robot's timing; the first speed also renders the AP images.
+    let data = BenchmarkPlan::standard().datagen(3, 0.5, true);
+    assert_eq!((data.world.building, data.sequence.speed_mps, data.sequence.max_scans), (3, 0.5, Some(600)));
+    assert_eq!(
+        (data.sequence.rate_hz, data.sequence.camera_rate_hz, data.lidar.sweep_period_s),
+        (10.0, Some(15.0), 0.1)
+    );
+    assert_eq!((data.detection.images, data.detection.train), (60, 0));
+    assert_eq!(BenchmarkPlan::standard().datagen(3, 1.0, false).detection.images, 0);
+}
+
+fn summary(x: f64, y: f64, z: f64) -> ErrorSummary {
+    let ate = (x * x + y * y + z * z).sqrt();
+    ErrorSummary {
+        matched: 10,
+        rmse_x: x,
+        rmse_y: y,
+        rmse_z: z,
+        ate_rmse: ate,
+        ate_mean: ate,
+        ate_median: ate,
+        ate_max: ate,
+    }
+}
+
+#[test]
+fn tables_carry_each_figure_in_its_unit() {
+    let row = BenchmarkRow {
+        building: 2,
+        speed_mps: 0.5,
+        levels: 3,
+        scans: 600,
+        distance_m: 29.95,
+        fused: summary(0.003, 0.004, 0.012),
+        odometry_imu: summary(0.1, 0.2, 0.2),
+        corrected_frames: 590,
+        ms_per_frame: 71.25,
+        ap50: Some(0.81234),
+        peers: vec![("kiss-icp".into(), None), ("genz-icp".into(), Some(summary(0.02, 0.03, 0.06)))],
+    };
+    let md = markdown(std::slice::from_ref(&row));
+    let lines: Vec<&str> = md.lines().collect();
+    assert_eq!(lines.len(), 3);
+    let header: Vec<&str> = lines[0].split('|').map(str::trim).collect();
+    let cells: Vec<&str> = lines[2].split('|').map(str::trim).collect();
+    assert_eq!(header.len(), cells.len());
+    let cell = |name: &str| cells[header.iter().position(|h| *h == name).unwrap_or_else(|| panic!("{name}"))];
+    assert_eq!(cell("fused x"), "3.0");
+    assert_eq!(cell("fused z"), "12.0");
+    assert_eq!(cell("fused ATE"), "13.0");
+    assert_eq!(cell("odom/IMU ATE"), "300.0");
+    assert_eq!(cell("kiss-icp ATE"), "-");
+    assert_eq!(cell("genz-icp y"), "30.0");
+    assert_eq!(cell("genz-icp ATE"), "70.0");
+    assert_eq!(cell("corrected"), "590/600");
+    assert_eq!(cell("AP@0.5"), "0.812");
+    let table = csv(&[row]);
+    let mut lines = table.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let cells: Vec<&str> = lines.next().unwrap().split(',').collect();
+    assert_eq!(header.len(), cells.len());
+    let cell = |name: &str| cells[header.iter().position(|h| *h == name).unwrap_or_else(|| panic!("{name}"))];
+    assert_eq!(cell("fused_ate"), "0.013000");
+    assert_eq!(cell("kiss_icp_ate"), "");
+    assert_eq!(cell("genz_icp_rmse_x"), "0.020000");
+    assert_eq!(cell("ap50"), "0.8123");
+}
