@@ -633,6 +633,34 @@ fn top_down(world: &World, rig: &Rig, sequence: &Sequence) -> RgbImage {
         let (a, b) = (s.vertices[0], s.vertices[1]);
         imageproc::drawing::draw_line_segment_mut(&mut image, to_px(a.x, a.y), to_px(b.x, b.y), Rgb([0, 0, 0]));
     }
+    // Furniture in brown, glass in cyan, crates in orange (pillars and
+    // partitions are walls).
+    for b in &layout.blocks {
+        use crate::world::block::BlockKind;
+        let colour = match b.kind {
+            BlockKind::Glass => Rgb([0, 170, 200]),
+            BlockKind::Crate => Rgb([230, 120, 0]),
+            BlockKind::Table | BlockKind::Chair | BlockKind::Shelf => Rgb([120, 70, 30]),
+            BlockKind::Pillar | BlockKind::Partition => continue,
+        };
+        let f = b.footprint();
+        for i in 0..4 {
+            let (p, q) = (f[i], f[(i + 1) % 4]);
+            imageproc::drawing::draw_line_segment_mut(&mut image, to_px(p[0], p[1]), to_px(q[0], q[1]), colour);
+        }
+    }
+    // The whole planned route in pink under the driven part in red.
+    let planned = Route::new(&layout.route, 1.2);
+    let steps = (planned.length() / 0.1).ceil() as usize;
+    for k in 0..steps {
+        let ((a, _), (b, _)) = (planned.at(k as f64 * 0.1), planned.at((k + 1) as f64 * 0.1));
+        imageproc::drawing::draw_line_segment_mut(
+            &mut image,
+            to_px(a[0], a[1]),
+            to_px(b[0], b[1]),
+            Rgb([255, 160, 160]),
+        );
+    }
     for pair in sequence.frames.windows(2) {
         let (a, b) = (pair[0].world_from_robot.translation.vector, pair[1].world_from_robot.translation.vector);
         imageproc::drawing::draw_line_segment_mut(&mut image, to_px(a.x, a.y), to_px(b.x, b.y), Rgb([200, 0, 0]));

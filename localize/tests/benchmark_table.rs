@@ -25,7 +25,8 @@ fn plans_outside_the_supported_ranges_are_refused() {
         f(&mut plan);
         plan.validate()
     };
-    assert!(with(&|p| p.buildings = vec![0]).unwrap_err().contains("building 0"));
+    assert!(with(&|p| p.buildings = vec![2_000_000]).unwrap_err().contains("building 2000000"));
+    assert!(with(&|p| p.buildings = vec![0]).is_ok(), "the paper's building runs beside the generated ones");
     assert!(with(&|p| p.speeds_mps = vec![f64::NAN]).unwrap_err().contains("NaN"));
     assert!(with(&|p| p.speeds_mps = vec![3.0]).is_err());
     assert!(with(&|p| p.max_scans = 5).is_err());
@@ -39,6 +40,8 @@ fn plans_outside_the_supported_ranges_are_refused() {
     );
     assert_eq!((data.detection.images, data.detection.train), (60, 0));
     assert_eq!(BenchmarkPlan::standard().datagen(3, 1.0, false).detection.images, 0);
+    let paper = BenchmarkPlan::standard().datagen(0, 0.05, true);
+    assert_eq!((paper.sequence.rate_hz, paper.sequence.camera_rate_hz, paper.lidar.sweep_period_s), (1.0, None, 0.0));
 }
 
 fn summary(x: f64, y: f64, z: f64) -> ErrorSummary {
