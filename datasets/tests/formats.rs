@@ -415,6 +415,20 @@ fn coco_round_trips_and_checks_references() {
     broken.annotations[0].image_id = 99;
     write_coco(&path, &broken).unwrap();
     assert!(message(read_coco(&path).unwrap_err()).contains("unknown image 99"));
+    // Boxes of zero size or outside their image are errors, not AP 0.
+    for (bbox, expected) in [
+        ([10.0, 10.0, 0.0, 5.0], "zero-size bbox"),
+        ([600.0, 10.0, 96.0, 96.0], "outside its 640x480 image"),
+        ([-50.0, 10.0, 20.0, 20.0], "outside its 640x480 image"),
+    ] {
+        let mut broken = data.clone();
+        broken.images[0].width = 640;
+        broken.images[0].height = 480;
+        broken.annotations[0].bbox = bbox;
+        write_coco(&path, &broken).unwrap();
+        let m = message(read_coco(&path).unwrap_err());
+        assert!(m.contains(expected) && m.contains("train.json"), "{m}");
+    }
     std::fs::write(&path, "{\"images\": [}").unwrap();
     let m = message(read_coco(&path).unwrap_err());
     assert!(m.contains("train.json") && m.contains("line 1"), "{m}");

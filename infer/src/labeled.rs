@@ -38,6 +38,9 @@ impl LabeledImage {
 /// and preprocesses them. An annotation without a `point` uses its box centre.
 pub fn load_coco_set(annotations: &Path, preprocess_config: &PreprocessConfig) -> Result<Vec<LabeledImage>, DataError> {
     let coco = read_coco(annotations)?;
+    if coco.images.is_empty() {
+        return Err(DataError::invalid(annotations, "no images: nothing to train or evaluate on"));
+    }
     let root = annotations.parent().unwrap_or(Path::new("."));
     coco.images
         .par_iter()

@@ -60,6 +60,20 @@ fn bad_input_gives_a_message_naming_the_file() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("missing.txt"));
     let out = localize(&["eval", "--gt", "a", "--est", "b", "--align", "affine"]);
     assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("affine"));
+    // Ground truth with a repeated stamp (another pose) or out of order: an
+    // error naming the file and the pose, not an ATE from wrong pairs.
+    let good = dir.path().join("good.txt");
+    std::fs::write(&good, "0 0 0 0 0 0 0 1\n1 1 0 0 0 0 0 1\n2 2 0 0 0 0 0 1\n").unwrap();
+    for (name, text, expected) in [
+        ("dup.txt", "0 0 0 0 0 0 0 1\n1 1 0 0 0 0 0 1\n1 5 0 0 0 0 0 1\n2 2 0 0 0 0 0 1\n", "duplicate timestamp"),
+        ("unsorted.txt", "0 0 0 0 0 0 0 1\n2 2 0 0 0 0 0 1\n1 1 0 0 0 0 0 1\n", "decreasing timestamp"),
+    ] {
+        let gt = dir.path().join(name);
+        std::fs::write(&gt, text).unwrap();
+        let out = localize(&["eval", "--gt", gt.to_str().unwrap(), "--est", good.to_str().unwrap()]);
+        let m = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && m.contains(name) && m.contains(expected), "{m}");
+    }
 }
 
 fn recording(name: &str) -> String {

@@ -68,10 +68,15 @@ impl CocoDataset {
     /// Checks ids and boxes; the message names the first offending entry.
     pub fn validate(&self) -> Result<(), String> {
         let mut images = HashSet::new();
+        let mut sizes = std::collections::HashMap::new();
         for im in &self.images {
             if !images.insert(im.id) {
                 return Err(format!("duplicate image id {}", im.id));
             }
+            if im.width == 0 || im.height == 0 {
+                return Err(format!("image {} ({}) has a zero size {}x{}", im.id, im.file_name, im.width, im.height));
+            }
+            sizes.insert(im.id, (im.width as f32, im.height as f32));
         }
         let categories: HashSet<u64> = self.categories.iter().map(|c| c.id).collect();
         let mut ids = HashSet::new();
@@ -85,9 +90,20 @@ impl CocoDataset {
             if !categories.contains(&a.category_id) {
                 return Err(format!("annotation {} refers to unknown category {}", a.id, a.category_id));
             }
-            let [_, _, w, h] = a.bbox;
+            let [x, y, w, h] = a.bbox;
             if !a.bbox().is_finite() || w < 0.0 || h < 0.0 {
                 return Err(format!("annotation {} has an invalid bbox {:?}", a.id, a.bbox));
+            }
+            if w == 0.0 || h == 0.0 {
+                return Err(format!("annotation {} has a zero-size bbox {:?}", a.id, a.bbox));
+            }
+            // A pixel of slack for tools that round outwards.
+            let (width, height) = sizes[&a.image_id];
+            if x < -1.0 || y < -1.0 || x + w > width + 1.0 || y + h > height + 1.0 {
+                return Err(format!(
+                    "annotation {} has a bbox {:?} outside its {width}x{height} image {}",
+                    a.id, a.bbox, a.image_id
+                ));
             }
         }
         Ok(())

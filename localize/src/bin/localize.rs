@@ -228,6 +228,14 @@ fn world_beside(gt: &Path) -> Option<PathBuf> {
 
 /// A trajectory file, or a pose topic of a recording.
 fn trajectory_input(path: &Path, topic: Option<&str>, flag: &str) -> Result<datasets::formats::Trajectory> {
+    let trajectory = read_trajectory_input(path, topic, flag)?;
+    // Duplicate stamps with other poses, or poses out of order, would be
+    // matched to the wrong partner without a word.
+    trajectory.check_increasing(path)?;
+    Ok(trajectory)
+}
+
+fn read_trajectory_input(path: &Path, topic: Option<&str>, flag: &str) -> Result<datasets::formats::Trajectory> {
     match topic {
         Some(topic) => {
             let recording = datasets::recording::Recording::open(path)?;
