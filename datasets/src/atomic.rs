@@ -61,6 +61,7 @@ pub fn write_dir<E: From<DataError>>(
         _ => Path::new("."),
     };
     std::fs::create_dir_all(parent).map_err(|e| DataError::io(parent, e))?;
+    recover_dir(dir)?;
     let tmp = tempfile::Builder::new().prefix(".tmp-dir-").tempdir_in(parent).map_err(|e| DataError::io(parent, e))?;
     fill(tmp.path())?;
     let name = dir.file_name().and_then(|n| n.to_str()).unwrap_or("dir");
@@ -72,6 +73,42 @@ pub fn write_dir<E: From<DataError>>(
     std::fs::rename(tmp.keep(), dir).map_err(|e| DataError::io(dir, e))?;
     let _ = std::fs::remove_dir_all(&old);
     Ok(())
+}
+
+/// Puts back a folder that a kill between `write_dir`'s two renames left
+/// only as `.old-NAME` beside it; true when it did.
+pub fn recover_dir(dir: &Path) -> Result<bool> {
+    let (Some(parent), Some(name)) = (dir.parent(), dir.file_name().and_then(|n| n.to_str())) else {
+        return Ok(false);
+    };
+    let old = parent.join(format!(".old-{name}"));
+    if dir.exists() || !old.is_dir() {
+        return Ok(false);
+    }
+    std::fs::rename(&old, dir).map_err(|e| DataError::io(&old, e))?;
+    Ok(true)
+}
+
+/// Removes the temporary files and folders (`.tmp-*`) that a killed writer
+/// left in `dir`; only for a folder that no other writer is using.
+pub fn remove_leftovers(dir: &Path) -> Result<usize> {
+    let mut removed = 0;
+    let entries = match std::fs::read_dir(dir) {
+        Ok(entries) => entries,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(0),
+        Err(e) => return Err(DataError::io(dir, e)),
+    };
+    for entry in entries {
+        let entry = entry.map_err(|e| DataError::io(dir, e))?;
+        if !entry.file_name().to_string_lossy().starts_with(".tmp-") {
+            continue;
+        }
+        let path = entry.path();
+        let gone = if path.is_dir() { std::fs::remove_dir_all(&path) } else { std::fs::remove_file(&path) };
+        gone.map_err(|e| DataError::io(&path, e))?;
+        removed += 1;
+    }
+    Ok(removed)
 }
 
 /// Reads a whole file, naming it in the error.

@@ -134,6 +134,10 @@ pub fn train_until(
             (c, None)
         }
         None => {
+            // A kill can leave temporary files, and the resume state renamed
+            // aside between the two renames of its replacement.
+            datasets::atomic::remove_leftovers(run)?;
+            datasets::atomic::recover_dir(&resume_dir)?;
             let path = run.join(CONFIG_FILE);
             let text = datasets::atomic::read_text(&path).context("nothing to resume")?;
             let c: TrainConfig =

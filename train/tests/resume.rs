@@ -17,10 +17,37 @@ fn an_interrupted_run_resumes_to_the_same_losses() {
         train::trainer::train_until(Some(tiny_config(Backbone::Alexnet, 3)), parts.path(), false, Some(1)).unwrap();
     assert!(stopped.is_none());
     assert_eq!(train_losses(parts.path()).len(), 2, "one epoch of two iterations logged");
+    // Killed between the two renames that replace the resume state, with a
+    // temporary folder and file left behind.
+    let run = parts.path();
+    std::fs::rename(run.join("resume"), run.join(".old-resume")).unwrap();
+    std::fs::create_dir(run.join(".tmp-dir-killed")).unwrap();
+    std::fs::write(run.join(".tmp-killed.csv"), "half a line").unwrap();
     train::train(None, parts.path(), false).unwrap();
+    let leftovers: Vec<_> = std::fs::read_dir(run)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with(".tmp-") || n.starts_with(".old-"))
+        .collect();
+    assert!(leftovers.is_empty(), "{leftovers:?}");
     let (a, b) = (train_losses(whole.path()), train_losses(parts.path()));
     assert_eq!(a.len(), b.len());
     for (k, (x, y)) in a.iter().zip(&b).enumerate() {
         assert_eq!(x, y, "iteration {k}: uninterrupted vs resumed (the log keeps 6 decimals)");
+    }
+}
+
+#[test]
+fn resume_refuses_flags_that_would_change_the_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().to_str().unwrap();
+    for flag in [&["--epochs", "5"][..], &["--lr", "0.1"], &["--batch-size", "2"], &["--seed", "3"]] {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_train"))
+            .args(["--resume", run])
+            .args(flag)
+            .output()
+            .unwrap();
+        let message = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && message.contains("--resume") && message.contains(flag[0]), "{message}");
     }
 }

@@ -21,8 +21,13 @@ struct Args {
     /// Run folder: settings, loss log, checkpoints, metrics.
     #[arg(long, required_unless_present = "resume")]
     out: Option<PathBuf>,
-    /// Continue the run in this folder from its last completed epoch.
-    #[arg(long, conflicts_with_all = ["backbone", "data", "out"])]
+    /// Continue the run in this folder from its last completed epoch, with
+    /// the settings in its config.json (flags that would change them are
+    /// refused: a resumed run ends as the uninterrupted one would).
+    #[arg(long, conflicts_with_all = [
+        "backbone", "data", "out", "epochs", "batch_size", "optimizer", "lr", "seed", "width", "no_augment",
+        "backend", "hidden", "grid_head", "pretrained", "pretrained_input", "pretrained_prune", "freeze", "no_cache",
+    ])]
     resume: Option<PathBuf>,
     /// Epochs (default: 24 for faster-rcnn and vgg16, 40 for alexnet).
     #[arg(long)]

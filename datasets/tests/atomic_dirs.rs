@@ -1,0 +1,37 @@
+//! Folders written as a unit survive a kill at any point: the state renamed
+//! aside between the two renames comes back, leftovers go.
+
+use datasets::atomic::{recover_dir, remove_leftovers, write_dir};
+
+#[test]
+fn a_folder_renamed_aside_by_a_kill_comes_back_and_leftovers_go() {
+    let root = tempfile::tempdir().unwrap();
+    let dir = root.path().join("resume");
+    write_dir::<datasets::DataError>(&dir, |tmp| {
+        std::fs::write(tmp.join("state.json"), "1").unwrap();
+        Ok(())
+    })
+    .unwrap();
+    // Killed after `resume` became `.old-resume`, before the new one moved in.
+    std::fs::rename(&dir, root.path().join(".old-resume")).unwrap();
+    assert!(recover_dir(&dir).unwrap());
+    assert_eq!(std::fs::read_to_string(dir.join("state.json")).unwrap(), "1");
+    assert!(!recover_dir(&dir).unwrap(), "nothing to recover twice");
+    // With both present the newer folder stays; write_dir recovers first.
+    std::fs::rename(&dir, root.path().join(".old-resume")).unwrap();
+    write_dir::<datasets::DataError>(&dir, |tmp| {
+        std::fs::write(tmp.join("state.json"), "2").unwrap();
+        Ok(())
+    })
+    .unwrap();
+    assert_eq!(std::fs::read_to_string(dir.join("state.json")).unwrap(), "2");
+    assert!(!root.path().join(".old-resume").exists());
+    std::fs::create_dir(root.path().join(".tmp-dir-x")).unwrap();
+    std::fs::write(root.path().join(".tmp-y"), "").unwrap();
+    std::fs::write(root.path().join("keep.tmp"), "").unwrap();
+    assert_eq!(remove_leftovers(root.path()).unwrap(), 2);
+    let mut names: Vec<_> =
+        std::fs::read_dir(root.path()).unwrap().map(|e| e.unwrap().file_name().into_string().unwrap()).collect();
+    names.sort();
+    assert_eq!(names, ["keep.tmp", "resume"]);
+}
