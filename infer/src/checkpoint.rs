@@ -104,10 +104,18 @@ pub fn load_weights(dir: &Path, config: &DetectorConfig, device: &Device) -> Res
         config: dir.join(CONFIG_FILE),
         message: e.to_string(),
     };
-    Ok(match Network::new(config, device) {
+    let network = match Network::new(config, device) {
         Network::FasterRcnn(m) => Network::FasterRcnn(m.try_load_file(&path).map_err(weights_error)?),
         Network::Grid(m) => Network::Grid(m.try_load_file(&path).map_err(weights_error)?),
-    })
+    };
+    // NaN weights would give NaN boxes and no detections without a word.
+    if let Some((param, count)) = network.first_non_finite() {
+        return Err(CheckpointError::Invalid {
+            path,
+            message: format!("{count} weights of `{param}` are NaN or infinite (a diverged or corrupt training run)"),
+        });
+    }
+    Ok(network)
 }
 
 /// Loads the whole network of the checkpoint in `dir` (trunk, RPN and

@@ -51,6 +51,40 @@ impl Network {
         network
     }
 
+    /// The path of the first parameter holding a NaN or an infinity, with
+    /// how many of its values are not finite.
+    pub fn first_non_finite(&self) -> Option<(String, usize)> {
+        #[derive(Default)]
+        struct Check {
+            path: Vec<String>,
+            found: Option<(String, usize)>,
+        }
+        impl ModuleVisitor for Check {
+            fn enter_module(&mut self, name: &str, _container_type: &str) {
+                self.path.push(name.to_string());
+            }
+            fn exit_module(&mut self, _name: &str, _container_type: &str) {
+                self.path.pop();
+            }
+            fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+                if self.found.is_some() {
+                    return;
+                }
+                let bad = crate::host(param.val()).iter().filter(|v| !v.is_finite()).count();
+                if bad > 0 {
+                    let path = self.path.iter().filter(|p| !p.is_empty()).cloned().collect::<Vec<_>>().join(".");
+                    self.found = Some((path, bad));
+                }
+            }
+        }
+        let mut check = Check::default();
+        match self {
+            Self::FasterRcnn(m) => m.visit(&mut check),
+            Self::Grid(m) => m.visit(&mut check),
+        }
+        check.found
+    }
+
     pub fn num_params(&self) -> usize {
         match self {
             Self::FasterRcnn(m) => m.num_params(),
