@@ -29,3 +29,112 @@ pub struct LocalizeConfig {
     pub ekf: EkfConfig,
     pub sync: SyncConfig,
 }
+
+/// Largest count a setting may ask for (points, votes, observations).
+const MAX_COUNT: usize = 10_000_000;
+
+impl LocalizeConfig {
+    /// Checks every setting against the range where it means something; the
+    /// message names the section and field (`normals.neighbours`).
+    pub fn validate(&self) -> Result<(), String> {
+        let range = |name: &str, v: f64, lo: f64, hi: f64, lo_open: bool| -> Result<(), String> {
+            let above = if lo_open { v > lo } else { v >= lo };
+            if v.is_finite() && above && v <= hi {
+                Ok(())
+            } else {
+                Err(format!("{name} {v} outside {}{lo}, {hi}]", if lo_open { "(" } else { "[" }))
+            }
+        };
+        let positive = |name: &str, v: f64, hi: f64| range(name, v, 0.0, hi, true);
+        let non_negative = |name: &str, v: f64, hi: f64| range(name, v, 0.0, hi, false);
+        let count = |name: &str, v: usize, lo: usize, hi: usize| -> Result<(), String> {
+            if (lo..=hi).contains(&v) { Ok(()) } else { Err(format!("{name} {v} outside {lo}..={hi}")) }
+        };
+        non_negative("voxel.size_m", self.voxel.size_m, 5.0)?;
+        count("normals.neighbours", self.normals.neighbours, 3, 1000)?;
+        let p = &self.planes;
+        positive("planes.angle_bin_deg", p.angle_bin_deg, 90.0)?;
+        positive("planes.distance_bin_m", p.distance_bin_m, 10.0)?;
+        positive("planes.max_curvature", p.max_curvature, 1.0)?;
+        count("planes.min_votes", p.min_votes, 1, MAX_COUNT)?;
+        count("planes.min_inliers", p.min_inliers, 3, MAX_COUNT)?;
+        positive("planes.inlier_distance_m", p.inlier_distance_m, 10.0)?;
+        positive("planes.inlier_angle_deg", p.inlier_angle_deg, 90.0)?;
+        non_negative("planes.merge_angle_deg", p.merge_angle_deg, 90.0)?;
+        non_negative("planes.merge_distance_m", p.merge_distance_m, 10.0)?;
+        count("planes.max_planes", p.max_planes, 1, 1000)?;
+        let c = &self.corners;
+        non_negative("corners.min_conditioning", c.min_conditioning, 1.0)?;
+        positive("corners.support_radius_m", c.support_radius_m, 10.0)?;
+        non_negative("corners.support_range_fraction", c.support_range_fraction, 1.0)?;
+        count("corners.min_support", c.min_support, 0, MAX_COUNT)?;
+        non_negative("corners.merge_radius_m", c.merge_radius_m, 10.0)?;
+        non_negative("corners.edge_min_angle_deg", c.edge_min_angle_deg, 180.0)?;
+        range("corners.edge_max_angle_deg", c.edge_max_angle_deg, c.edge_min_angle_deg, 180.0, false)?;
+        let f = &self.fusion;
+        positive("fusion.gate_m", f.gate_m, 100.0)?;
+        positive("fusion.surface_radius_m", f.surface_radius_m, 100.0)?;
+        non_negative("fusion.min_score", f64::from(f.min_score), 1.0)?;
+        let l = &self.landmarks;
+        positive("landmarks.gate_m", l.gate_m, 100.0)?;
+        count("landmarks.min_observations", l.min_observations as usize, 0, MAX_COUNT)?;
+        positive("landmarks.max_spread_m", l.max_spread_m, 100.0)?;
+        count("landmarks.max_observations", l.max_observations as usize, 1, MAX_COUNT)?;
+        let w = &self.plane_landmarks;
+        count("plane_landmarks.min_inliers", w.min_inliers, 3, MAX_COUNT)?;
+        positive("plane_landmarks.angle_gate_deg", w.angle_gate_deg, 90.0)?;
+        positive("plane_landmarks.distance_gate_m", w.distance_gate_m, 100.0)?;
+        positive("plane_landmarks.distance_sigma_m", w.distance_sigma_m, 100.0)?;
+        positive("plane_landmarks.normal_sigma_rad", w.normal_sigma_rad, std::f64::consts::PI)?;
+        positive("plane_landmarks.range_scale_m", w.range_scale_m, 1000.0)?;
+        positive("plane_landmarks.max_weight", w.max_weight, 1e6)?;
+        count("plane_landmarks.min_observations", w.min_observations as usize, 0, MAX_COUNT)?;
+        positive("plane_landmarks.max_offset_spread_m", w.max_offset_spread_m, 100.0)?;
+        positive("plane_landmarks.max_normal_spread_deg", w.max_normal_spread_deg, 180.0)?;
+        non_negative("plane_landmarks.max_wall_tilt_deg", w.max_wall_tilt_deg, 90.0)?;
+        let o = &self.pose;
+        positive("pose.corner_sigma_m", o.corner_sigma_m, 100.0)?;
+        positive("pose.huber", o.huber, 1000.0)?;
+        count("pose.iterations", o.iterations, 1, 1000)?;
+        count("pose.min_matches", o.min_matches, 1, MAX_COUNT)?;
+        positive("pose.seed_gate_m", o.seed_gate_m, 100.0)?;
+        let e = &self.ekf;
+        for (name, v) in [
+            ("ekf.gyro_noise_rps", e.gyro_noise_rps),
+            ("ekf.speed_noise_mps", e.speed_noise_mps),
+            ("ekf.bias_walk", e.bias_walk),
+            ("ekf.scale_walk", e.scale_walk),
+            ("ekf.initial_bias_rps", e.initial_bias_rps),
+            ("ekf.initial_scale", e.initial_scale),
+            ("ekf.initial_accel_bias_mps2", e.initial_accel_bias_mps2),
+            ("ekf.gravity_sigma_rad", e.gravity_sigma_rad),
+            ("ekf.gravity_gate_mps2", e.gravity_gate_mps2),
+            ("ekf.gravity_gate_chi2", e.gravity_gate_chi2),
+        ] {
+            non_negative(name, v, 1000.0)?;
+        }
+        self.sync.validate().map_err(|m| format!("sync: {m}"))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_pass_and_absurd_or_nan_settings_are_named() {
+        LocalizeConfig::default().validate().unwrap();
+        let with = |f: &dyn Fn(&mut LocalizeConfig)| {
+            let mut c = LocalizeConfig::default();
+            f(&mut c);
+            c.validate().unwrap_err()
+        };
+        assert!(with(&|c| c.normals.neighbours = 100_000).contains("normals.neighbours 100000"));
+        assert!(with(&|c| c.pose.huber = f64::NAN).contains("pose.huber NaN"));
+        assert!(with(&|c| c.voxel.size_m = -0.1).contains("voxel.size_m"));
+        assert!(with(&|c| c.fusion.min_score = 1.5).contains("fusion.min_score"));
+        assert!(with(&|c| c.corners.edge_max_angle_deg = 1.0).contains("corners.edge_max_angle_deg"));
+        assert!(with(&|c| c.ekf.bias_walk = f64::INFINITY).contains("ekf.bias_walk"));
+        assert!(with(&|c| c.sync.image_tolerance_s = -1.0).starts_with("sync:"));
+    }
+}

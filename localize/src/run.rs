@@ -37,7 +37,7 @@ pub fn run_sequence(
     config: &LocalizeConfig,
     show_progress: bool,
 ) -> Result<RunResult> {
-    config.sync.validate().map_err(crate::error::LocalizeError::Config)?;
+    config.validate().map_err(|m| crate::error::LocalizeError::Config(format!("invalid settings: {m}")))?;
     let calibration = sequence.calibration().clone();
     let mut localizer = Localizer::new(config, calibration.clone())?;
     let stamps = sequence.frame_stamps();

@@ -202,3 +202,25 @@ fn eval_takes_a_pose_topic_of_a_bag_as_evo_does() {
     let out = localize(&["eval", "--gt", &bag, "--est", &est_tum]);
     assert!(String::from_utf8_lossy(&out.stderr).contains("name its pose topic with --gt-topic"));
 }
+
+#[test]
+fn absurd_settings_in_a_config_file_are_named_before_anything_runs() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("settings.json");
+    std::fs::write(&config, r#"{"normals": {"neighbours": 100000}}"#).unwrap();
+    let out = localize(&[
+        "run",
+        "--sequence",
+        dir.path().to_str().unwrap(),
+        "--config",
+        config.to_str().unwrap(),
+        "--out",
+        dir.path().join("out").to_str().unwrap(),
+    ]);
+    let message = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && message.contains("settings.json") && message.contains("normals.neighbours 100000"),
+        "{message}"
+    );
+    assert!(!dir.path().join("out").exists());
+}

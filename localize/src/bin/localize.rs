@@ -371,7 +371,10 @@ fn read_config(path: Option<&Path>) -> Result<LocalizeConfig> {
     Ok(match path {
         Some(path) => {
             let text = datasets::atomic::read_text(path)?;
-            serde_json::from_str(&text).with_context(|| format!("{}: not a localization config", path.display()))?
+            let config: LocalizeConfig = serde_json::from_str(&text)
+                .with_context(|| format!("{}: not a localization config", path.display()))?;
+            config.validate().map_err(|m| anyhow::anyhow!("{}: {m}", path.display()))?;
+            config
         }
         None => LocalizeConfig::default(),
     })
