@@ -223,10 +223,21 @@ pub fn generate(out: &Path, config: &DatagenConfig) -> Result<Summary> {
     config.validate().map_err(|m| DataError::invalid(out, format!("invalid configuration: {m}")))?;
     let world = World::new(&config.world, key(config.seed, stream::APPEARANCE, 0));
     let rig = Rig::default();
-    atomic::write_json(&out.join("datagen.json"), config)?;
+    // The folder is one run: an earlier run's parts go first (a longer
+    // sequence would leave its extra frames), and `datagen.json` comes last,
+    // so that a killed run never looks finished.
+    for part in ["datagen.json", "detection", "sequence", "preview"] {
+        let path = out.join(part);
+        let removed = if path.is_dir() { std::fs::remove_dir_all(&path) } else { std::fs::remove_file(&path) };
+        match removed {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(DataError::io(&path, e)),
+            _ => {}
+        }
+    }
     let (detection_images, detection_labels) = write_detection_set(&out.join("detection"), &world, &rig, config)?;
     let sequence = write_sequence(&out.join("sequence"), &world, &rig, config)?;
     write_previews(&out.join("preview"), &world, &rig, &sequence)?;
+    atomic::write_json(&out.join("datagen.json"), config)?;
     Ok(Summary {
         detection_images,
         detection_labels,
@@ -275,7 +286,16 @@ fn random_view(world: &World, rig: &Rig, rng: &mut ChaCha8Rng) -> Pose3 {
 /// A random robot pose in the free space, away from walls and boxes.
 fn random_robot_pose(world: &World, rng: &mut ChaCha8Rng) -> Pose3 {
     let layout = &world.layout;
-    let areas: Vec<f64> = layout.regions.iter().map(|r| (r.x[1] - r.x[0]) * (r.y[1] - r.y[0])).collect();
+    let margin = 0.35;
+    // Doorways are too narrow to stand in away from their walls.
+    let areas: Vec<f64> = layout
+        .regions
+        .iter()
+        .map(|r| {
+            let (w, h) = (r.x[1] - r.x[0], r.y[1] - r.y[0]);
+            if w > 2.0 * margin && h > 2.0 * margin { w * h } else { 0.0 }
+        })
+        .collect();
     let total: f64 = areas.iter().sum();
     loop {
         let mut pick = rng.random_range(0.0..total);
@@ -284,7 +304,6 @@ fn random_robot_pose(world: &World, rng: &mut ChaCha8Rng) -> Pose3 {
             pick < 0.0
         });
         let r = &layout.regions[region.unwrap_or(0)];
-        let margin = 0.35;
         let x = rng.random_range(r.x[0] + margin..r.x[1] - margin);
         let y = rng.random_range(r.y[0] + margin..r.y[1] - margin);
         let blocked = layout
@@ -675,4 +694,26 @@ fn top_down(world: &World, rig: &Rig, sequence: &Sequence) -> RgbImage {
         );
     }
     image
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn random_views_stand_on_the_floor_clear_of_clutter_in_every_building() {
+        // Doorways (1 x 0.3 m) are regions too narrow to stand in: they must
+        // never be picked (they once made the sampling range empty).
+        for building in 0..=5 {
+            let world = World::new(&WorldConfig { building, ..WorldConfig::default() }, 1);
+            let mut rng = ChaCha8Rng::seed_from_u64(9);
+            for _ in 0..3000 {
+                let pose = random_robot_pose(&world, &mut rng);
+                let p = pose.translation.vector;
+                let floor = world.layout.floor_height(p.x, p.y).expect("on the floor");
+                assert!((p.z - floor).abs() < 0.05, "building {building}: {p:?} above a floor at {floor}");
+                assert!(world.layout.blocks.iter().all(|b| b.distance([p.x, p.y]) >= 0.35));
+            }
+        }
+    }
 }

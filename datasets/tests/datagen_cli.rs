@@ -101,4 +101,13 @@ fn a_tiny_run_writes_the_documented_layout() {
     );
     let imu_rows = std::fs::read_to_string(dir.path().join("sequence/imu.csv")).unwrap().lines().count() as u64 - 1;
     assert_eq!(count("/imu"), imu_rows);
+
+    // A shorter run into the same folder leaves none of the longer run's
+    // frames or images behind; files that are not a run's stay.
+    std::fs::write(dir.path().join("notes.txt"), "mine").unwrap();
+    let (ok, err) = datagen(&["--out", o, "--images", "1", "--train", "1", "--frames", "1", "--seed", "11"]);
+    assert!(ok, "{err}");
+    let count_in = |rel: &str| std::fs::read_dir(dir.path().join(rel)).unwrap().count();
+    assert_eq!((count_in("sequence/cloud"), count_in("sequence/rgb"), count_in("detection/images")), (1, 1, 1));
+    assert!(dir.path().join("notes.txt").is_file() && dir.path().join("datagen.json").is_file());
 }

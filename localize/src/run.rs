@@ -249,8 +249,14 @@ pub fn write_outputs(
     datasets::atomic::write_bytes(&out.join("frames.csv"), frames_csv(&result.frames).as_bytes())?;
     datasets::atomic::write_json(&out.join("config.json"), config)?;
     crate::plot::write_trajectory_png(&out.join("trajectory.png"), &result.trajectory, &result.reference, truth)?;
-    if let Some(m) = metrics {
-        datasets::atomic::write_json(&out.join("metrics.json"), m)?;
+    let metrics_path = out.join("metrics.json");
+    match metrics {
+        Some(m) => datasets::atomic::write_json(&metrics_path, m)?,
+        // An earlier run's metrics must not pass for this run's.
+        None if metrics_path.exists() => {
+            std::fs::remove_file(&metrics_path).map_err(|e| datasets::DataError::io(&metrics_path, e))?
+        }
+        None => {}
     }
     Ok(())
 }
