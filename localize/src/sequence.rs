@@ -212,7 +212,22 @@ impl SensorSequence for RecordedSequence {
                 Some(file) => Ok(FrameImage {
                     stamp: file.stamp,
                     name: file.path.file_stem().and_then(|s| s.to_str()).unwrap_or_default().to_string(),
-                    image: datasets::atomic::read_image(&file.path).map_err(|e| e.to_string()),
+                    image: datasets::atomic::read_image(&file.path).map_err(|e| e.to_string()).and_then(|im| {
+                        // Corners of an image of another size would land on the wrong rays.
+                        let camera = &self.calibration.camera;
+                        if (im.width(), im.height()) == (camera.width, camera.height) {
+                            Ok(im)
+                        } else {
+                            Err(format!(
+                                "{}: image is {}x{}, the calibration's camera is {}x{}",
+                                file.path.display(),
+                                im.width(),
+                                im.height(),
+                                camera.width,
+                                camera.height
+                            ))
+                        }
+                    }),
                 }),
                 None => Err(format!("no image within {} s of scan {:.6}", self.image_tolerance_s, frame.stamp)),
             };

@@ -259,3 +259,20 @@ fn a_generated_building_with_its_own_clocks_reads_as_scans_with_images_and_sweep
         .unwrap();
     assert_eq!(seen, 6);
 }
+
+#[test]
+fn an_image_of_another_size_than_the_calibration_says_so_in_its_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    write_sequence(dir.path());
+    std::fs::create_dir_all(dir.path().join("rgb")).unwrap();
+    image::RgbImage::new(320, 240).save(dir.path().join("rgb/1.000000.png")).unwrap();
+    let sequence = RecordedSequence::open(dir.path()).unwrap();
+    let checkpoint = manifest_dir().join("../checkpoints/faster-rcnn");
+    let mut source = CornerSource::detector(&checkpoint, infer::backend::CpuBackend::Flex.device(), 0.3).unwrap();
+    let result = run_sequence(&sequence, &mut source, &LocalizeConfig::default(), false).unwrap();
+    let FrameStatus::NoImage { why, .. } = &result.frames[1].status else { panic!("{:?}", result.frames[1].status) };
+    assert!(
+        why.contains("1.000000.png") && why.contains("image is 320x240, the calibration's camera is 640x480"),
+        "{why}"
+    );
+}

@@ -11,6 +11,7 @@ use localize::config::LocalizeConfig;
 use localize::corner_source::CornerSource;
 use localize::eval::{Alignment, ErrorSummary, compare};
 use localize::levels::LevelMap;
+use localize::pipeline::FrameStatus;
 use localize::run::{metrics, run_sequence, write_outputs};
 use localize::sequence::{RecordedSequence, SensorSequence, WithTruth};
 
@@ -445,6 +446,26 @@ fn run(args: &RunArgs) -> Result<()> {
     println!("wrote {}", args.out.join("trajectory.txt").display());
     if sequence.ground_truth().is_some() && metrics.is_none() {
         eprintln!("warning: the ground truth does not overlap the run's times (within 0.01 s): no metrics.json");
+    }
+    // Frames that lost their corners or their cloud, with the first reason:
+    // frames.csv has every frame's.
+    let lost = |pick: &dyn Fn(&FrameStatus) -> Option<String>| {
+        let reasons: Vec<String> = result.frames.iter().filter_map(|f| pick(&f.status)).collect();
+        (reasons.len(), reasons.into_iter().next())
+    };
+    let (n, first) = lost(&|s| match s {
+        FrameStatus::NoImage { why, .. } => Some(why.clone()),
+        _ => None,
+    });
+    if let Some(why) = first {
+        eprintln!("warning: {n} of {} frames had no 2D corners, the first because: {why}", result.frames.len());
+    }
+    let (n, first) = lost(&|s| match s {
+        FrameStatus::BadCloud(why) => Some(why.clone()),
+        _ => None,
+    });
+    if let Some(why) = first {
+        eprintln!("warning: {n} of {} frames had no usable cloud, the first because: {why}", result.frames.len());
     }
     if let Some(m) = metrics {
         println!("{} frames, {} fused, {:.1} ms per frame", m.frames, m.fused_frames, m.mean_total_ms);
