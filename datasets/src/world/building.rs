@@ -144,18 +144,9 @@ impl<'r> Plan<'r> {
         route.push([0.0, 0.0]);
         route.dedup_by(|a, b| (a[0] - b[0]).abs() < 1e-9 && (a[1] - b[1]).abs() < 1e-9);
 
-        let mut layout = Layout {
-            config: WorldConfig { building: number, ..WorldConfig::default() },
-            levels: plan.levels.clone(),
-            regions: std::mem::take(&mut plan.regions),
-            obstacles: Vec::new(),
-            blocks: Vec::new(),
-            walkers: Vec::new(),
-            surfaces: Vec::new(),
-            corners: Vec::new(),
-            lights: Vec::new(),
-            route,
-        };
+        let config = WorldConfig { building: number, ..WorldConfig::default() };
+        let regions = std::mem::take(&mut plan.regions);
+        let mut layout = Layout::unbuilt(config, plan.levels.clone(), regions, Vec::new(), route);
         let samples = route_samples(&layout)?;
         let length = Route::new(&layout.route, TURN_RADIUS_M).length();
         if !(ROUTE_LENGTH_M[0]..=ROUTE_LENGTH_M[1]).contains(&length) {

@@ -247,9 +247,23 @@ impl Layout {
             obstacle([15.0 + l1, 15.6 + l1], [10.8 + l2, 11.4 + l2], h2, 0.5),
         ];
         let route = vec![[0.0, 0.0], [turn_x, 0.0], [turn_x, 10.0 + l2]];
-        let mut layout = Self {
-            config: config.clone(),
-            levels: config.level_heights_m.to_vec(),
+        let mut layout = Self::unbuilt(config.clone(), config.level_heights_m.to_vec(), regions, obstacles, route);
+        layout.build_surfaces_and_corners(appearance_seed);
+        layout
+    }
+
+    /// A layout of free space, obstacles and route with nothing else yet:
+    /// blocks and walkers are added, then `build_surfaces_and_corners`.
+    pub(super) fn unbuilt(
+        config: WorldConfig,
+        levels: Vec<f64>,
+        regions: Vec<Region>,
+        obstacles: Vec<Obstacle>,
+        route: Vec<[f64; 2]>,
+    ) -> Self {
+        Self {
+            config,
+            levels,
             regions,
             obstacles,
             blocks: Vec::new(),
@@ -258,9 +272,7 @@ impl Layout {
             corners: Vec::new(),
             lights: Vec::new(),
             route,
-        };
-        layout.build_surfaces_and_corners(appearance_seed);
-        layout
+        }
     }
 
     /// The floor height under `(x, y)`, or `None` outside the free space.
