@@ -23,7 +23,7 @@ use crate::world::lidar::{LidarConfig, scan, sweep};
 use crate::world::motion::{MotionConfig, simulate_imu, simulate_odometry};
 use crate::world::render::{Lighting, render};
 use crate::world::rig::Rig;
-use crate::world::route::{Route, pose_on_floor};
+use crate::world::route::{Route, pose_on_floor, samples_on_floor};
 use crate::world::{World, WorldConfig};
 
 /// Everything `datagen` needs; written next to the results as `datagen.json`.
@@ -456,17 +456,14 @@ fn write_sequence(dir: &Path, world: &World, rig: &Rig, config: &DatagenConfig) 
     let frames_after_route_end = count.saturating_sub(whole_route);
     let layout = &world.layout;
     // The route is checked once, every 5 cm, so that poses never fail later.
-    for k in 0..=(length / 0.05).ceil() as usize {
-        let (xy, heading) = route.at(k as f64 * 0.05);
-        if pose_on_floor(layout, xy, heading).is_none() {
-            return Err(DataError::invalid(
-                dir,
-                format!(
-                    "the route leaves the free space at ({:.2}, {:.2}) with a turn radius of {} m",
-                    xy[0], xy[1], s.turn_radius_m
-                ),
-            ));
-        }
+    if let Err(xy) = samples_on_floor(layout, &route, 0.05) {
+        return Err(DataError::invalid(
+            dir,
+            format!(
+                "the route leaves the free space at ({:.2}, {:.2}) with a turn radius of {} m",
+                xy[0], xy[1], s.turn_radius_m
+            ),
+        ));
     }
     let pose_at = |t: f64| -> Pose3 {
         let (xy, heading) = route.at(s.speed_mps * t.max(0.0));

@@ -17,7 +17,7 @@ use rand::{RngExt, SeedableRng};
 use super::block::{Block, BlockKind};
 use super::layout::{Axis, Floor, Layout, Region, WorldConfig, mix};
 use super::people::Walker;
-use super::route::{Route, TRACK_M, WHEELBASE_M, pose_on_floor};
+use super::route::{Route, TRACK_M, WHEELBASE_M, samples_on_floor};
 
 /// The largest building number accepted.
 pub const MAX_BUILDING: u32 = 1_000_000;
@@ -478,18 +478,14 @@ impl<'r> Plan<'r> {
 /// the free space (a wheel off every region).
 fn route_samples(layout: &Layout) -> Option<Vec<[f64; 2]>> {
     let route = Route::new(&layout.route, TURN_RADIUS_M);
-    let steps = (route.length() / 0.05).ceil() as usize;
+    let samples = samples_on_floor(layout, &route, 0.05).ok()?;
     let margin = (WHEELBASE_M.hypot(TRACK_M)) / 2.0 + 0.15;
-    let mut samples = Vec::with_capacity(steps + 1);
-    for k in 0..=steps {
-        let (xy, heading) = route.at(k as f64 * 0.05);
-        pose_on_floor(layout, xy, heading)?;
-        // The body, not only the wheels, stays off the walls.
+    // The body, not only the wheels, stays off the walls.
+    for ([x, y], _) in &samples {
         for a in 0..8 {
             let angle = a as f64 * std::f64::consts::FRAC_PI_4;
-            layout.floor_height(xy[0] + margin * angle.cos(), xy[1] + margin * angle.sin())?;
+            layout.floor_height(x + margin * angle.cos(), y + margin * angle.sin())?;
         }
-        samples.push(xy);
     }
-    Some(samples)
+    Some(samples.into_iter().map(|(xy, _)| xy).collect())
 }

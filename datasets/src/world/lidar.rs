@@ -97,7 +97,7 @@ impl LidarConfig {
 /// One instantaneous scan from `world_from_lidar` at world time `time`;
 /// `key` seeds its noise and dropouts.
 pub fn scan(world: &World, config: &LidarConfig, world_from_lidar: &Pose3, time: f64, key: u64) -> PointCloud {
-    fire(world, config, &|_| (*world_from_lidar, time), key)
+    fire(world, config, &|_| (*world_from_lidar, time), key, false)
 }
 
 /// One sweep that starts at world time `start`: the firing at azimuth step
@@ -114,15 +114,18 @@ pub fn sweep(
     let steps = (360.0 / config.azimuth_step_deg).round() as usize;
     let period = config.sweep_period_s;
     let column_time = |k: usize| period * k as f64 / steps as f64;
-    let mut cloud = fire(world, config, &|k| (world_from_lidar(start + column_time(k)), start + column_time(k)), key);
-    cloud.times = Some(cloud.times.take().unwrap_or_default());
-    cloud
+    fire(world, config, &|k| (world_from_lidar(start + column_time(k)), start + column_time(k)), key, true)
 }
 
-/// Fires every azimuth step `k` from the pose and world time `at(k)` gives.
-/// Clouds from more than one pose carry each point's time after the first
-/// firing.
-fn fire(world: &World, config: &LidarConfig, at: &(dyn Fn(usize) -> (Pose3, f64) + Sync), key: u64) -> PointCloud {
+/// Fires every azimuth step `k` from the pose and world time `at(k)` gives;
+/// a `timed` cloud keeps each point's time after the first firing.
+fn fire(
+    world: &World,
+    config: &LidarConfig,
+    at: &(dyn Fn(usize) -> (Pose3, f64) + Sync),
+    key: u64,
+    timed: bool,
+) -> PointCloud {
     let elevations: Vec<f64> = config.elevations_deg().iter().map(|e| e.to_radians()).collect();
     let steps = (360.0 / config.azimuth_step_deg).round() as usize;
     let start = at(0).1;
@@ -155,9 +158,7 @@ fn fire(world: &World, config: &LidarConfig, at: &(dyn Fn(usize) -> (Pose3, f64)
         times.push(t);
     }
     let mut cloud = PointCloud::new(points, Some(intensity));
-    if times.iter().any(|&t| t != 0.0) {
-        cloud.times = Some(times);
-    }
+    cloud.times = timed.then_some(times);
     cloud
 }
 

@@ -129,3 +129,15 @@ pub fn pose_on_floor(layout: &Layout, xy: [f64; 2], heading: f64) -> Option<Pose
     let z = (front + rear) / 2.0;
     Some(Pose3::from_parts(Point3::new(xy[0], xy[1], z).into(), rotation))
 }
+
+/// Points along `route` every `step_m` (position and heading), or the
+/// first point where a wheel would leave the free space.
+pub fn samples_on_floor(layout: &Layout, route: &Route, step_m: f64) -> Result<Vec<([f64; 2], f64)>, [f64; 2]> {
+    let steps = (route.length() / step_m).ceil() as usize;
+    (0..=steps)
+        .map(|k| {
+            let (xy, heading) = route.at(k as f64 * step_m);
+            pose_on_floor(layout, xy, heading).map(|_| (xy, heading)).ok_or(xy)
+        })
+        .collect()
+}
