@@ -2,6 +2,9 @@
 //! from the evaluation data in geometry (level heights, ramp slope, ceiling
 //! height, corridor width), appearance (colours, posters) and views, so that
 //! a trunk pretrained on it has never seen the images it is evaluated on.
+//! Besides variants of the paper's area it can hold generated buildings
+//! (numbered from [`CorpusConfig::first_building`], far from the benchmark's
+//! buildings 1-5), so that the detector learns rooms it is not tested on.
 
 use std::path::Path;
 
@@ -19,7 +22,12 @@ use crate::world::{World, WorldConfig};
 pub struct CorpusConfig {
     /// Seed of the worlds' geometry and appearance and of the views.
     pub seed: u64,
+    /// Variants of the paper's three-level area.
     pub worlds: usize,
+    /// Generated buildings (`--building N`), after the variants.
+    pub buildings: usize,
+    /// The number of the first generated building.
+    pub first_building: u32,
     pub images_per_world: usize,
     /// Every this-many-th image goes to the corpus's own test split.
     pub test_every: usize,
@@ -27,7 +35,7 @@ pub struct CorpusConfig {
 
 impl Default for CorpusConfig {
     fn default() -> Self {
-        Self { seed: 1001, worlds: 16, images_per_world: 250, test_every: 20 }
+        Self { seed: 1001, worlds: 16, buildings: 0, first_building: 1001, images_per_world: 250, test_every: 20 }
     }
 }
 
@@ -36,12 +44,21 @@ pub const CORPUS_FILE: &str = "corpus.json";
 
 impl CorpusConfig {
     pub fn images(&self) -> usize {
-        self.worlds * self.images_per_world
+        (self.worlds + self.buildings) * self.images_per_world
     }
 
     pub fn validate(&self) -> std::result::Result<(), String> {
-        if self.worlds == 0 || self.images_per_world == 0 {
+        if self.worlds + self.buildings == 0 || self.images_per_world == 0 {
             return Err("the corpus needs at least one world and one image per world".into());
+        }
+        if self.images() > 1_000_000 {
+            return Err(format!("{} images is more than a corpus needs (at most 1000000)", self.images()));
+        }
+        if self.buildings > 0 && self.first_building < 6 {
+            return Err(format!(
+                "first_building {} would train on the benchmark's buildings 1-5 (use 6 or more)",
+                self.first_building
+            ));
         }
         if self.test_every < 2 {
             return Err(format!("test_every {} must be at least 2", self.test_every));
@@ -94,8 +111,13 @@ pub fn generate_corpus(out: &Path, config: &CorpusConfig, base: &DatagenConfig) 
     // The views' seed is salted so that no corpus view repeats a datagen view.
     let views_seed = mix(config.seed ^ 0xc0_4905);
     let mut views = Vec::with_capacity(config.images());
-    for k in 0..config.worlds {
-        let world = World::new(&config.world(k), key(config.seed, stream::APPEARANCE, k as u64 + 1));
+    for k in 0..config.worlds + config.buildings {
+        let world_config = if k < config.worlds {
+            config.world(k)
+        } else {
+            WorldConfig { building: config.first_building + (k - config.worlds) as u32, ..WorldConfig::default() }
+        };
+        let world = World::new(&world_config, key(config.seed, stream::APPEARANCE, k as u64 + 1));
         let first = k * config.images_per_world;
         views.extend(render_views(out, &world, &rig, base, views_seed, first..first + config.images_per_world, &bar)?);
     }

@@ -9,6 +9,7 @@ pub mod atomic;
 pub mod bbox;
 pub mod camera;
 pub mod canny;
+pub mod cli;
 pub mod corpus;
 pub mod error;
 pub mod formats;

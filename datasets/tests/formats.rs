@@ -503,3 +503,23 @@ fn a_fifo_is_refused_at_once_instead_of_waiting_for_a_writer() {
     let e = datasets::recording::Recording::open(&fifo).unwrap_err().to_string();
     assert!(e.contains("not a regular file"), "{e}");
 }
+
+/// Inputs the fuzzer found: each was a hang, a panic or a wrong result.
+#[test]
+fn fuzzer_findings_are_errors_naming_the_file() {
+    // A binary PLY element without properties and 10^12 items: walked item
+    // by item, it hung; the counts are now checked against the file first.
+    let ply = b"ply\nformat binary_little_endian 1.0\nelement ghost 1000000000000\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nend_header\n\0\0\0\0\0\0\0\0\0\0\0\0";
+    let e = ply::read_ply_bytes(Path::new("ghost.ply"), ply, NonFinite::Drop).unwrap_err().to_string();
+    assert!(e.contains("ghost.ply") && e.contains("no properties"), "{e}");
+    let ply = b"ply\nformat binary_little_endian 1.0\nelement vertex 1000000\nproperty float x\nproperty float y\nproperty float z\nend_header\n\0\0\0\0";
+    let e = ply::read_ply_bytes(Path::new("short.ply"), ply, NonFinite::Drop).unwrap_err().to_string();
+    assert!(e.contains("short.ply") && e.contains("at least 12000000 bytes"), "{e}");
+    // A quaternion with a component of 1e308: its length overflowed, and the
+    // "normalised" rotation was NaN.
+    let tum = "0 0 0 0 0 1e308 0 1\n";
+    let e = trajectory::parse_tum(Path::new("big.txt"), tum).unwrap_err().to_string();
+    assert!(e.contains("big.txt:1") && e.contains("quaternion length"), "{e}");
+    let almost = "0 0 0 0 0 0 0 0.99\n";
+    assert!(trajectory::parse_tum(Path::new("ok.txt"), almost).is_ok(), "a rounded unit quaternion reads");
+}

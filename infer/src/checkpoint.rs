@@ -70,9 +70,13 @@ pub fn save_weights(network: &Network, stem: &Path) -> Result<(), CheckpointErro
 
 pub fn read_config(dir: &Path) -> Result<DetectorConfig, CheckpointError> {
     let path = dir.join(CONFIG_FILE);
-    let text = datasets::atomic::read_text(&path)?;
-    let config: DetectorConfig = serde_json::from_str(&text).map_err(|e| datasets::DataError::json(&path, e))?;
-    config.validate().map_err(|message| CheckpointError::Invalid { path: path.clone(), message })?;
+    parse_config(&path, &datasets::atomic::read_text(&path)?)
+}
+
+/// A validated detector configuration from the text of `path`.
+pub fn parse_config(path: &Path, text: &str) -> Result<DetectorConfig, CheckpointError> {
+    let config: DetectorConfig = serde_json::from_str(text).map_err(|e| datasets::DataError::json(path, e))?;
+    config.validate().map_err(|message| CheckpointError::Invalid { path: path.to_path_buf(), message })?;
     Ok(config)
 }
 

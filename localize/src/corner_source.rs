@@ -40,6 +40,11 @@ impl CornerSource {
                 (im.id, stem.to_string())
             })
             .collect();
+        // Every labelled image has an entry, with or without corners: a frame
+        // whose image the file does not list is told apart from one without corners.
+        for name in names.values() {
+            by_image.entry(name.clone()).or_default();
+        }
         for a in &coco.annotations {
             let (Some(p), Some(name)) = (a.point, names.get(&a.image_id)) else { continue };
             by_image.entry(name.clone()).or_default().push([p[0] as f64, p[1] as f64]);
@@ -67,13 +72,16 @@ impl CornerSource {
                     .collect()),
                 None => Err("no image".to_string()),
             },
-            Self::Labels { by_image, noise_px, rng } => {
-                let points = by_image.get(stem).cloned().unwrap_or_default();
-                Ok(points
-                    .into_iter()
-                    .map(|[x, y]| [x + *noise_px * gaussian(rng), y + *noise_px * gaussian(rng)])
-                    .collect())
-            }
+            // Labels stand in for the detector, so they need the image the
+            // detector would have seen: no image, no corners.
+            Self::Labels { by_image, noise_px, rng } => match (image, by_image.get(stem)) {
+                (None, _) => Err("no image".to_string()),
+                (Some(_), None) => Err(format!("image `{stem}` is not in the labels file")),
+                (Some(_), Some(points)) => Ok(points
+                    .iter()
+                    .map(|&[x, y]| [x + *noise_px * gaussian(rng), y + *noise_px * gaussian(rng)])
+                    .collect()),
+            },
         };
         (found, start.elapsed().as_secs_f64() * 1e3)
     }

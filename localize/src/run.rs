@@ -98,8 +98,8 @@ pub fn run_sequence(
         let (geometry, (pixels, detect_ms)) = rayon::join(
             || localizer.frame_geometry(cloud),
             || match (&image, &mut *source) {
-                (Err(why), CornerSource::Detector { .. }) => (Err(why.clone()), 0.0),
-                (image, source) => source.corners(&name, image.as_ref().ok()),
+                (Err(why), _) => (Err(why.clone()), 0.0),
+                (Ok(image), source) => source.corners(&name, Some(image)),
             },
         );
         let camera = CameraCorners { pixels, lidar_from_camera, detect_ms };
@@ -234,8 +234,15 @@ pub fn frames_csv(frames: &[FrameReport]) -> String {
     out
 }
 
-/// Writes `trajectory.txt`, `reference.txt`, `frames.csv`, `config.json`,
-/// `trajectory.png` and, with ground truth, `metrics.json` (every file atomically).
+/// The files `localize run` writes into its output folder, and nothing else.
+pub const RUN_OUTPUTS: [&str; 6] =
+    ["trajectory.txt", "reference.txt", "frames.csv", "config.json", "trajectory.png", "metrics.json"];
+
+/// Writes the run's outputs as one unit: the folder is filled beside its
+/// final name and then takes its place, so files of an earlier run never
+/// stay beside the new ones and a killed run leaves the old folder whole.
+/// A folder holding anything else than an earlier run's outputs is refused
+/// rather than replaced (it may be the user's data).
 pub fn write_outputs(
     out: &Path,
     config: &LocalizeConfig,
@@ -243,20 +250,40 @@ pub fn write_outputs(
     truth: Option<&Trajectory>,
     metrics: Option<&RunMetrics>,
 ) -> Result<()> {
-    std::fs::create_dir_all(out).map_err(|e| datasets::DataError::io(out, e))?;
-    write_tum(&out.join("trajectory.txt"), &result.trajectory)?;
-    write_tum(&out.join("reference.txt"), &result.reference)?;
-    datasets::atomic::write_bytes(&out.join("frames.csv"), frames_csv(&result.frames).as_bytes())?;
-    datasets::atomic::write_json(&out.join("config.json"), config)?;
-    crate::plot::write_trajectory_png(&out.join("trajectory.png"), &result.trajectory, &result.reference, truth)?;
-    let metrics_path = out.join("metrics.json");
-    match metrics {
-        Some(m) => datasets::atomic::write_json(&metrics_path, m)?,
-        // An earlier run's metrics must not pass for this run's.
-        None if metrics_path.exists() => {
-            std::fs::remove_file(&metrics_path).map_err(|e| datasets::DataError::io(&metrics_path, e))?
+    check_output_folder(out)?;
+    datasets::atomic::write_dir(out, |dir| -> Result<()> {
+        write_tum(&dir.join("trajectory.txt"), &result.trajectory)?;
+        write_tum(&dir.join("reference.txt"), &result.reference)?;
+        datasets::atomic::write_bytes(&dir.join("frames.csv"), frames_csv(&result.frames).as_bytes())?;
+        datasets::atomic::write_json(&dir.join("config.json"), config)?;
+        crate::plot::write_trajectory_png(&dir.join("trajectory.png"), &result.trajectory, &result.reference, truth)?;
+        if let Some(m) = metrics {
+            datasets::atomic::write_json(&dir.join("metrics.json"), m)?;
         }
-        None => {}
+        Ok(())
+    })
+}
+
+/// Refuses an output folder that holds files `localize run` did not write
+/// (temporary files a killed writer left are its own).
+pub fn check_output_folder(out: &Path) -> Result<()> {
+    if out.exists() && !out.is_dir() {
+        return Err(datasets::DataError::invalid(out, "the output is not a folder").into());
+    }
+    let Ok(entries) = std::fs::read_dir(out) else { return Ok(()) };
+    for entry in entries {
+        let entry = entry.map_err(|e| datasets::DataError::io(out, e))?;
+        let name = entry.file_name().to_string_lossy().into_owned();
+        if !RUN_OUTPUTS.contains(&name.as_str()) && !name.starts_with(".tmp-") {
+            return Err(datasets::DataError::invalid(
+                out,
+                format!(
+                    "holds `{name}`, which is not an output of a localization run: give an empty or new folder \
+                     (an earlier run's folder is replaced whole)"
+                ),
+            )
+            .into());
+        }
     }
     Ok(())
 }

@@ -224,3 +224,53 @@ fn absurd_settings_in_a_config_file_are_named_before_anything_runs() {
     );
     assert!(!dir.path().join("out").exists());
 }
+
+#[test]
+fn a_used_output_folder_is_replaced_whole_and_a_foreign_one_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let out_dir = dir.path().join("run");
+    std::fs::create_dir_all(&out_dir).unwrap();
+    // An earlier run's files and a temporary file a killed writer left.
+    std::fs::write(out_dir.join("frames.csv"), "stale").unwrap();
+    std::fs::write(out_dir.join(".tmp-x1"), "partial").unwrap();
+    let checkpoint = manifest_dir().join("../checkpoints/alexnet");
+    let bag = recording("rosbag2_mcap");
+    let run = |out: &std::path::Path| {
+        localize(&["run", "--bag", &bag, "--checkpoint", checkpoint.to_str().unwrap(), "--out", out.to_str().unwrap()])
+    };
+    let out = run(&out_dir);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let frames = std::fs::read_to_string(out_dir.join("frames.csv")).unwrap();
+    assert!(frames.lines().count() == 11, "{frames}");
+    assert!(!out_dir.join(".tmp-x1").exists());
+    let names: Vec<String> =
+        std::fs::read_dir(&out_dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    assert!(names.iter().all(|n| localize::run::RUN_OUTPUTS.contains(&n.as_str())), "{names:?}");
+    // A folder with somebody else's file is refused before any work, untouched.
+    let foreign = dir.path().join("mine");
+    std::fs::create_dir_all(&foreign).unwrap();
+    std::fs::write(foreign.join("notes.txt"), "keep").unwrap();
+    let out = run(&foreign);
+    let message = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && message.contains("notes.txt") && message.contains("mine"), "{message}");
+    assert_eq!(std::fs::read_to_string(foreign.join("notes.txt")).unwrap(), "keep");
+    assert_eq!(std::fs::read_dir(&foreign).unwrap().count(), 1);
+}
+
+#[test]
+fn an_error_prints_each_cause_once_without_a_backtrace() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("missing.txt");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_localize"))
+        .args(["eval", "--gt", missing.to_str().unwrap(), "--est", missing.to_str().unwrap()])
+        .env("RUST_BACKTRACE", "1")
+        .output()
+        .unwrap();
+    let message = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && message.contains("missing.txt"), "{message}");
+    assert_eq!(message.matches("No such file").count(), 1, "{message}");
+    assert!(!message.to_lowercase().contains("backtrace"), "{message}");
+    let out = localize(&["bench", "--frames", "-1"]);
+    let message = String::from_utf8_lossy(&out.stderr);
+    assert!(message.contains("--frames") && message.contains("at least 1, got -1"), "{message}");
+}

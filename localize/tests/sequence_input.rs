@@ -79,9 +79,11 @@ fn a_corrupt_cloud_is_a_per_frame_fallback_and_the_run_goes_on() {
     let mut source = CornerSource::labels(&dir.path().join("labels.json"), 0.0, 1).unwrap();
     let result = run_sequence(&sequence, &mut source, &LocalizeConfig::default(), false).unwrap();
     assert_eq!(result.trajectory.len(), 3);
-    assert_eq!(result.frames[0].status, FrameStatus::FirstFrame);
+    // Labels stand in for a detector: without an image they give no corners.
+    let no_image = |s: &FrameStatus| matches!(s, FrameStatus::NoImage { why, .. } if why.contains("no image within"));
+    assert!(no_image(&result.frames[0].status), "{:?}", result.frames[0].status);
     assert!(matches!(&result.frames[1].status, FrameStatus::BadCloud(why) if why.contains("1.000000.pcd")));
-    assert_eq!(result.frames[2].status, FrameStatus::TooFewMatches { corners: 0, walls: 0 });
+    assert!(no_image(&result.frames[2].status), "{:?}", result.frames[2].status);
     assert_eq!(result.frames[2].planes, 5, "floor and four walls");
     // A still robot stays where it started.
     for pose in &result.trajectory.poses {
@@ -275,4 +277,55 @@ fn an_image_of_another_size_than_the_calibration_says_so_in_its_frame() {
         why.contains("1.000000.png") && why.contains("image is 320x240, the calibration's camera is 640x480"),
         "{why}"
     );
+}
+
+#[test]
+fn labels_give_no_corners_for_an_unreadable_image_or_one_they_do_not_list() {
+    let dir = tempfile::tempdir().unwrap();
+    write_sequence(dir.path());
+    std::fs::create_dir_all(dir.path().join("rgb")).unwrap();
+    let image = image::DynamicImage::new_rgb8(640, 480);
+    for name in ["0.000000", "1.000000", "2.000000"] {
+        datasets::atomic::write_image(&dir.path().join("rgb").join(format!("{name}.png")), &image).unwrap();
+    }
+    // Frame 1's image is corrupt; frame 2's is not in the labels file.
+    std::fs::write(dir.path().join("rgb/1.000000.png"), b"\x89PNG broken").unwrap();
+    let image_entry =
+        |id: u64, name: &str| datasets::formats::CocoImage { id, file_name: name.into(), width: 640, height: 480 };
+    let corner = datasets::formats::CocoAnnotation {
+        id: 1,
+        image_id: 1,
+        category_id: 1,
+        bbox: [300.0, 200.0, 16.0, 16.0],
+        area: 256.0,
+        iscrowd: 0,
+        corner_type: None,
+        point: Some([308.0, 208.0]),
+    };
+    let labels = CocoDataset {
+        info: None,
+        images: vec![image_entry(0, "0.000000.png"), image_entry(1, "1.000000.png")],
+        annotations: vec![corner],
+        categories: vec![datasets::formats::CocoCategory { id: 1, name: "corner".into(), supercategory: None }],
+    };
+    write_coco(&dir.path().join("labels.json"), &labels).unwrap();
+    let sequence = RecordedSequence::open(dir.path()).unwrap();
+    let mut source = CornerSource::labels(&dir.path().join("labels.json"), 0.0, 1).unwrap();
+    let mut corners = |k: usize| {
+        let frame = &sequence.frames[k];
+        let stem = frame.image.as_ref().map(|i| i.path.file_stem().unwrap().to_string_lossy().into_owned()).unwrap();
+        let loaded = frame.image.as_ref().map(|i| image::open(&i.path));
+        source.corners(&stem, loaded.as_ref().and_then(|r| r.as_ref().ok())).0
+    };
+    assert_eq!(corners(0), Ok(vec![]), "listed, without corners");
+    assert_eq!(corners(1), Err("no image".to_string()), "the image does not decode");
+    assert!(corners(2).unwrap_err().contains("not in the labels file"));
+    // Through the whole run, the corrupt image is that frame's reason.
+    let result = run_sequence(&sequence, &mut source, &LocalizeConfig::default(), false).unwrap();
+    assert!(
+        matches!(&result.frames[1].status, FrameStatus::NoImage { why, .. } if why.contains("1.000000.png")),
+        "{:?}",
+        result.frames[1].status
+    );
+    assert!(matches!(&result.frames[2].status, FrameStatus::NoImage { why, .. } if why.contains("not in the labels")));
 }

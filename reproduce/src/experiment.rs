@@ -144,7 +144,7 @@ pub fn run(out: &Path, plan: &Plan, show_progress: bool) -> Result<Results> {
     }
     let records = runs.iter().map(|r| read_run(&r.run)).collect::<Result<Vec<_>>>()?;
     let compare_dir = out.join("compare");
-    std::fs::create_dir_all(&compare_dir)?;
+    std::fs::create_dir_all(&compare_dir).map_err(|e| datasets::DataError::io(&compare_dir, e))?;
     write_loss_plots(&records, &compare_dir.join("losses"))?;
     datasets::atomic::write_bytes(&compare_dir.join("table.md"), markdown_table(&records).as_bytes())?;
     datasets::atomic::write_bytes(&compare_dir.join("table.csv"), csv_table(&records).as_bytes())?;

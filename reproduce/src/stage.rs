@@ -32,6 +32,12 @@ pub fn run_stage<I: Serialize, O: Serialize + DeserializeOwned>(
     if let Some(outputs) = finished(dir, &inputs) {
         return Ok((outputs, true));
     }
+    // A record of other inputs no longer describes the folder once the stage
+    // starts rewriting it (and a stage may refuse files it did not write).
+    let record = dir.join(RECORD_FILE);
+    if record.exists() {
+        std::fs::remove_file(&record).with_context(|| format!("removing {}", record.display()))?;
+    }
     let outputs = run()?;
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let record = serde_json::json!({ "inputs": inputs, "outputs": serde_json::to_value(&outputs)? });

@@ -51,3 +51,35 @@ fn resume_refuses_flags_that_would_change_the_run() {
         assert!(!out.status.success() && message.contains("--resume") && message.contains(flag[0]), "{message}");
     }
 }
+
+#[test]
+fn bad_flags_and_unusable_folders_get_messages_that_name_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let train = |args: &[&str]| {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_train"))
+            .args(args)
+            .env("RUST_BACKTRACE", "1")
+            .output()
+            .unwrap();
+        assert!(!out.status.success());
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
+    let data = dir.path().to_str().unwrap();
+    let base = ["--backbone", "alexnet", "--data", data];
+    // A negative count is a bad value of its flag, not an unknown argument.
+    for (flag, value) in [("--epochs", "-1"), ("--batch-size", "0"), ("--lr", "-0.5"), ("--lr", "NaN")] {
+        let out = dir.path().join("run");
+        let message = train(&[&base[..], &["--out", out.to_str().unwrap(), flag, value]].concat());
+        assert!(
+            message.contains(flag) && message.contains(value) && !message.contains("unexpected argument"),
+            "{message}"
+        );
+    }
+    // An output that is a file: the error names it (not a bare "File exists"),
+    // and an ordinary error prints no backtrace even with RUST_BACKTRACE set.
+    let file = dir.path().join("a-file");
+    std::fs::write(&file, "x").unwrap();
+    let message = train(&[&base[..], &["--out", file.to_str().unwrap(), "--epochs", "1"]].concat());
+    assert!(message.contains("a-file"), "{message}");
+    assert!(!message.to_lowercase().contains("backtrace"), "{message}");
+}

@@ -48,7 +48,11 @@ struct Args {
     bag: Option<PathBuf>,
 }
 
-fn main() -> Result<()> {
+fn main() -> std::process::ExitCode {
+    datasets::cli::exit_code(run_main())
+}
+
+fn run_main() -> Result<()> {
     let args = Args::parse();
     let mut config = match &args.config {
         Some(path) => {

@@ -45,8 +45,12 @@ impl Calibration {
 }
 
 pub fn read_calibration(path: &Path) -> Result<Calibration> {
-    let text = crate::atomic::read_text(path)?;
-    let file: CalibFile = serde_json::from_str(&text).map_err(|e| DataError::json(path, e))?;
+    parse_calibration(path, &crate::atomic::read_text(path)?)
+}
+
+/// A calibration from the text of `path`.
+pub fn parse_calibration(path: &Path, text: &str) -> Result<Calibration> {
+    let file: CalibFile = serde_json::from_str(text).map_err(|e| DataError::json(path, e))?;
     file.camera.validate().map_err(|m| DataError::invalid(path, format!("camera: {m}")))?;
     let pose = |rows: &RowsMat4, name: &str| {
         pose_from_rows(rows).ok_or_else(|| {

@@ -133,8 +133,12 @@ pub fn read_cloud(path: &Path, policy: NonFinite) -> Result<PointCloud> {
 
 /// KITTI Velodyne scans: float32 records `x y z reflectance`, little endian.
 pub fn read_kitti_bin(path: &Path, policy: NonFinite) -> Result<PointCloud> {
-    let bytes = crate::atomic::read_bytes(path)?;
-    if bytes.len() % 16 != 0 {
+    parse_kitti_bin(path, &crate::atomic::read_bytes(path)?, policy)
+}
+
+/// A KITTI scan from the bytes of `path`.
+pub fn parse_kitti_bin(path: &Path, bytes: &[u8], policy: NonFinite) -> Result<PointCloud> {
+    if !bytes.len().is_multiple_of(16) {
         return Err(DataError::byte(
             path,
             (bytes.len() - bytes.len() % 16) as u64,

@@ -111,8 +111,12 @@ impl CocoDataset {
 }
 
 pub fn read_coco(path: &Path) -> Result<CocoDataset> {
-    let text = crate::atomic::read_text(path)?;
-    let data: CocoDataset = serde_json::from_str(&text).map_err(|e| DataError::json(path, e))?;
+    parse_coco(path, &crate::atomic::read_text(path)?)
+}
+
+/// A validated COCO set from the text of `path`.
+pub fn parse_coco(path: &Path, text: &str) -> Result<CocoDataset> {
+    let data: CocoDataset = serde_json::from_str(text).map_err(|e| DataError::json(path, e))?;
     data.validate().map_err(|m| DataError::invalid(path, m))?;
     Ok(data)
 }

@@ -221,6 +221,38 @@ pub fn read_ply_bytes(path: &Path, bytes: &[u8], policy: NonFinite) -> Result<Po
         }
         PlyFormat::BinaryLittleEndian | PlyFormat::BinaryBigEndian => {
             let little = format == PlyFormat::BinaryLittleEndian;
+            // Each item takes at least its scalars and list counts: a count the
+            // rest of the file cannot hold is refused before the items are
+            // walked (an element without properties would loop for nothing).
+            let mut least = 0usize;
+            for element in &elements {
+                let item_bytes: usize = element
+                    .properties
+                    .iter()
+                    .map(|p| match *p {
+                        Property::Scalar { kind, .. } => kind.size(),
+                        Property::List { count, .. } => count.size(),
+                    })
+                    .sum();
+                if element.count > 0 && item_bytes == 0 {
+                    return Err(DataError::invalid(
+                        path,
+                        format!("element `{}` has {} items but no properties", element.name, element.count),
+                    ));
+                }
+                least = least.saturating_add(element.count.saturating_mul(item_bytes));
+            }
+            if least > bytes.len() - pos {
+                return Err(DataError::byte(
+                    path,
+                    pos as u64,
+                    format!(
+                        "file ends inside the binary body: the header declares items of at least {least} bytes, \
+                         the file has {} after it",
+                        bytes.len() - pos
+                    ),
+                ));
+            }
             let mut values = Vec::new();
             for (e_index, element) in elements.iter().enumerate() {
                 for item in 0..element.count {

@@ -33,10 +33,9 @@ pub struct ImuSample {
 pub const ODOMETRY_COLUMNS: [&str; 6] = ["timestamp", "x", "y", "yaw", "v", "omega"];
 pub const IMU_COLUMNS: [&str; 7] = ["timestamp", "ax", "ay", "az", "gx", "gy", "gz"];
 
-/// Reads the named columns of a numeric CSV, one row of values per line, and
+/// Parses the named columns of a numeric CSV, one row of values per line, and
 /// checks that timestamps (the first named column) strictly increase.
-fn read_columns<const N: usize>(path: &Path, columns: [&str; N]) -> Result<Vec<[f64; N]>> {
-    let text = crate::atomic::read_text(path)?;
+fn parse_columns<const N: usize>(path: &Path, text: &str, columns: [&str; N]) -> Result<Vec<[f64; N]>> {
     let mut lines = text.lines().enumerate().map(|(k, l)| (k + 1, l.trim())).filter(|(_, l)| !l.is_empty());
     let (_, header) = lines.next().ok_or_else(|| DataError::invalid(path, "empty file: expected a header row"))?;
     let names: Vec<&str> = header.trim_start_matches('#').split(',').map(str::trim).collect();
@@ -80,14 +79,24 @@ fn read_columns<const N: usize>(path: &Path, columns: [&str; N]) -> Result<Vec<[
 }
 
 pub fn read_odometry(path: &Path) -> Result<Vec<OdometrySample>> {
-    Ok(read_columns(path, ODOMETRY_COLUMNS)?
+    parse_odometry(path, &crate::atomic::read_text(path)?)
+}
+
+/// Odometry from the text of `path`.
+pub fn parse_odometry(path: &Path, text: &str) -> Result<Vec<OdometrySample>> {
+    Ok(parse_columns(path, text, ODOMETRY_COLUMNS)?
         .into_iter()
         .map(|r| OdometrySample { timestamp: r[0], x: r[1], y: r[2], yaw: r[3], v: r[4], omega: r[5] })
         .collect())
 }
 
 pub fn read_imu(path: &Path) -> Result<Vec<ImuSample>> {
-    Ok(read_columns(path, IMU_COLUMNS)?
+    parse_imu(path, &crate::atomic::read_text(path)?)
+}
+
+/// IMU samples from the text of `path`.
+pub fn parse_imu(path: &Path, text: &str) -> Result<Vec<ImuSample>> {
+    Ok(parse_columns(path, text, IMU_COLUMNS)?
         .into_iter()
         .map(|r| ImuSample { timestamp: r[0], accel: [r[1], r[2], r[3]], gyro: [r[4], r[5], r[6]] })
         .collect())

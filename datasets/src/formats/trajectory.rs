@@ -81,8 +81,14 @@ fn numbers(path: &Path, line_no: usize, words: &[&str]) -> Result<Vec<f64>> {
 
 fn unit_quaternion(path: &Path, line_no: usize, w: f64, x: f64, y: f64, z: f64) -> Result<UnitQuaternion<f64>> {
     let q = Quaternion::new(w, x, y, z);
-    if q.norm() < 1e-6 {
+    let length = q.norm();
+    if length < 1e-6 {
         return Err(DataError::line(path, line_no, "quaternion has zero length"));
+    }
+    // Writers round a unit quaternion; one far from unit length (or too long
+    // to measure) is not a rotation anybody wrote.
+    if !(0.9..=1.1).contains(&length) {
+        return Err(DataError::line(path, line_no, format!("quaternion length {length:e} is not 1 (within 10%)")));
     }
     Ok(UnitQuaternion::from_quaternion(q))
 }
@@ -107,12 +113,16 @@ pub fn detect_format(path: &Path, text: &str) -> Result<TrajectoryFormat> {
 /// Reads a trajectory of any supported layout. KITTI files get their line
 /// index as timestamp unless a `times.txt`-style file is given.
 pub fn read_trajectory(path: &Path) -> Result<(Trajectory, TrajectoryFormat)> {
-    let text = crate::atomic::read_text(path)?;
-    let format = detect_format(path, &text)?;
+    parse_trajectory(path, &crate::atomic::read_text(path)?)
+}
+
+/// A trajectory of any supported layout from the text of `path`.
+pub fn parse_trajectory(path: &Path, text: &str) -> Result<(Trajectory, TrajectoryFormat)> {
+    let format = detect_format(path, text)?;
     let trajectory = match format {
-        TrajectoryFormat::Tum => parse_tum(path, &text)?,
-        TrajectoryFormat::Kitti => parse_kitti(path, &text, None)?,
-        TrajectoryFormat::Euroc => parse_euroc(path, &text)?,
+        TrajectoryFormat::Tum => parse_tum(path, text)?,
+        TrajectoryFormat::Kitti => parse_kitti(path, text, None)?,
+        TrajectoryFormat::Euroc => parse_euroc(path, text)?,
     };
     Ok((trajectory, format))
 }

@@ -23,6 +23,32 @@ fn encoding(path: &Path, topic: &str, name: &str) -> Result<Encoding> {
     }
 }
 
+/// Largest record, or chunk unpacked into memory: writers cut chunks of a
+/// few MiB; a larger declared size is a corrupt header, which must be an
+/// error, not an allocation.
+pub const MAX_RECORD_BYTES: usize = 1 << 29;
+
+/// Every message in file order, through the crate's sans-io reader, which
+/// (unlike its `MessageStream`) takes a bound on record and chunk sizes.
+fn for_each_message(path: &Path, bytes: &[u8], f: &mut dyn FnMut(mcap::Message<'_>) -> Result<()>) -> Result<()> {
+    use mcap::sans_io::{LinearReaderOptions, MessageReadEvent, MessageReader};
+    let mut reader =
+        MessageReader::new_with_options(LinearReaderOptions::default().with_record_length_limit(MAX_RECORD_BYTES));
+    let mut rest = bytes;
+    while let Some(event) = reader.next_event() {
+        match event.map_err(|e| mcap_error(path, e))? {
+            MessageReadEvent::ReadRequest(need) => {
+                let n = need.min(rest.len());
+                reader.insert(n).copy_from_slice(&rest[..n]);
+                reader.notify_read(n);
+                rest = &rest[n..];
+            }
+            MessageReadEvent::Message(message) => f(message)?,
+        }
+    }
+    Ok(())
+}
+
 /// The topics of an MCAP file with their counts and log-time span, from
 /// its summary section when it has one, else by reading every message.
 pub fn topics(path: &Path, bytes: &[u8]) -> Result<Vec<TopicInfo>> {
@@ -84,19 +110,14 @@ pub fn topics(path: &Path, bytes: &[u8]) -> Result<Vec<TopicInfo>> {
         }
         return Ok(topics.into_values().collect());
     }
-    for message in mcap::MessageStream::new(bytes).map_err(|e| mcap_error(path, e))? {
-        let m = message.map_err(|e| mcap_error(path, e))?;
+    for_each_message(path, bytes, &mut |m| {
         let schema = m.channel.schema.as_ref().map_or("", |s| s.name.as_str());
-        add(&m.channel.topic, schema, &m.channel.message_encoding, 1, m.log_time, m.log_time)?;
-    }
+        add(&m.channel.topic, schema, &m.channel.message_encoding, 1, m.log_time, m.log_time)
+    })?;
     Ok(topics.into_values().collect())
 }
 
 /// Visits every message in file order.
 pub fn visit(path: &Path, bytes: &[u8], visit: &mut RawVisitor<'_>) -> Result<()> {
-    for message in mcap::MessageStream::new(bytes).map_err(|e| mcap_error(path, e))? {
-        let m = message.map_err(|e| mcap_error(path, e))?;
-        visit(&m.channel.topic, m.log_time as i64, &m.data)?;
-    }
-    Ok(())
+    for_each_message(path, bytes, &mut |m| visit(&m.channel.topic, m.log_time as i64, &m.data))
 }

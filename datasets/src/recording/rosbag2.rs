@@ -36,8 +36,20 @@ fn text<'y>(yaml: &'y Yaml, key: &str) -> Option<&'y str> {
 
 pub fn read_metadata(dir: &Path) -> Result<Metadata> {
     let path = dir.join("metadata.yaml");
-    let source = crate::atomic::read_text(&path)?;
-    let docs = YamlLoader::load_from_str(&source).map_err(|e| DataError::invalid(&path, format!("not YAML: {e}")))?;
+    let meta = parse_metadata(dir, &path, &crate::atomic::read_text(&path)?)?;
+    for file in &meta.files {
+        if !file.is_file() {
+            return Err(DataError::invalid(&path, format!("lists {}, which is missing", file.display())));
+        }
+    }
+    Ok(meta)
+}
+
+/// The metadata of the bag folder `dir` from the text of its `path`
+/// (`metadata.yaml`); the files it lists are not looked at.
+pub fn parse_metadata(dir: &Path, path: &Path, source: &str) -> Result<Metadata> {
+    let path = path.to_path_buf();
+    let docs = YamlLoader::load_from_str(source).map_err(|e| DataError::invalid(&path, format!("not YAML: {e}")))?;
     let info = docs
         .first()
         .map(|d| &d["rosbag2_bagfile_information"])
@@ -72,11 +84,6 @@ pub fn read_metadata(dir: &Path) -> Result<Metadata> {
         .collect::<Result<_>>()?;
     if files.is_empty() {
         return Err(DataError::invalid(&path, "`relative_file_paths` is empty"));
-    }
-    for file in &files {
-        if !file.is_file() {
-            return Err(DataError::invalid(&path, format!("lists {}, which is missing", file.display())));
-        }
     }
     Ok(Metadata { storage, files, compression })
 }

@@ -11,7 +11,7 @@ use infer::{Detection, Detector};
 use serde::Serialize;
 
 #[derive(Debug, Parser)]
-#[command(name = "infer", version, args_conflicts_with_subcommands = true)]
+#[command(name = "infer", version, args_conflicts_with_subcommands = true, allow_negative_numbers = true)]
 struct Cli {
     #[command(subcommand)]
     command: Option<Command>,
@@ -26,6 +26,7 @@ enum Command {
 }
 
 #[derive(Debug, Args)]
+#[command(allow_negative_numbers = true)]
 struct DetectArgs {
     /// Checkpoint folder (config.json, model.bpk, meta.json).
     #[arg(long)]
@@ -43,6 +44,7 @@ struct DetectArgs {
 }
 
 #[derive(Debug, Args)]
+#[command(allow_negative_numbers = true)]
 struct EvalArgs {
     #[arg(long)]
     checkpoint: PathBuf,
@@ -64,7 +66,11 @@ struct ImageDetections<'a> {
     detections: Vec<Detection>,
 }
 
-fn main() -> Result<()> {
+fn main() -> std::process::ExitCode {
+    datasets::cli::exit_code(run_main())
+}
+
+fn run_main() -> Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Some(Command::Eval(args)) => eval(args),

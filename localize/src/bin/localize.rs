@@ -39,6 +39,7 @@ enum Command {
 }
 
 #[derive(clap::Args)]
+#[command(allow_negative_numbers = true)]
 struct BenchmarkArgs {
     /// Folder of the generated data, the runs and the tables (reused when run again).
     #[arg(long)]
@@ -50,10 +51,10 @@ struct BenchmarkArgs {
     #[arg(long)]
     speeds: Option<String>,
     /// Scans per sequence at most, at 10 Hz (default 600; with --quick 150).
-    #[arg(long)]
+    #[arg(long, value_parser = datasets::cli::positive_count)]
     max_scans: Option<usize>,
     /// Labelled images per building for the detector's AP@0.5 (default 60; with --quick 16).
-    #[arg(long)]
+    #[arg(long, value_parser = datasets::cli::positive_count)]
     detection_images: Option<usize>,
     /// A few minutes instead of about an hour: two buildings, one speed, short sequences.
     #[arg(long)]
@@ -71,9 +72,10 @@ struct BenchmarkArgs {
 }
 
 #[derive(clap::Args)]
+#[command(allow_negative_numbers = true)]
 struct BenchArgs {
     /// Scans of each kind, taken along the built-in route.
-    #[arg(long, default_value_t = 20)]
+    #[arg(long, default_value_t = 20, value_parser = datasets::cli::positive_count)]
     frames: usize,
     /// Detector checkpoint to time (skipped when the folder is missing).
     #[arg(long, default_value = "checkpoints/faster-rcnn")]
@@ -85,6 +87,7 @@ struct BenchArgs {
 }
 
 #[derive(clap::Args)]
+#[command(allow_negative_numbers = true)]
 struct InspectArgs {
     /// A rosbag2 folder, an .mcap, a .db3 or a ROS 1 .bag.
     path: PathBuf,
@@ -129,6 +132,7 @@ impl TopicArgs {
 }
 
 #[derive(clap::Args)]
+#[command(allow_negative_numbers = true)]
 #[group(id = "input", required = true, multiple = false, args = ["sequence", "bag"])]
 struct RunArgs {
     /// The sequence folder (cloud/, rgb/, odom.csv, imu.csv, calib.json[, groundtruth.txt]).
@@ -146,7 +150,7 @@ struct RunArgs {
     #[arg(long)]
     gt: Option<PathBuf>,
     /// A scan takes the nearest image within this many seconds (default 0.05, or the config's).
-    #[arg(long)]
+    #[arg(long, value_parser = datasets::cli::non_negative)]
     image_tolerance: Option<f64>,
     /// The detector checkpoint folder.
     #[arg(long, default_value = "checkpoints/faster-rcnn")]
@@ -161,7 +165,7 @@ struct RunArgs {
     /// from the detector; never the default).
     #[arg(long)]
     corners_from_labels: Option<PathBuf>,
-    #[arg(long, default_value_t = 2.0)]
+    #[arg(long, default_value_t = 2.0, value_parser = datasets::cli::non_negative)]
     label_noise_px: f64,
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -170,6 +174,7 @@ struct RunArgs {
 }
 
 #[derive(clap::Args)]
+#[command(allow_negative_numbers = true)]
 struct PlanesArgs {
     cloud: PathBuf,
     /// Print one JSON object instead of a table.
@@ -178,6 +183,7 @@ struct PlanesArgs {
 }
 
 #[derive(clap::Args)]
+#[command(allow_negative_numbers = true)]
 struct EvalArgs {
     /// Ground-truth trajectory: a TUM, KITTI or EuRoC file, or a recording with --gt-topic.
     #[arg(long)]
@@ -195,7 +201,7 @@ struct EvalArgs {
     #[arg(long, value_enum, default_value_t = Alignment::None)]
     align: Alignment,
     /// Largest timestamp difference (s) of an associated pair.
-    #[arg(long, default_value_t = 0.01)]
+    #[arg(long, default_value_t = 0.01, value_parser = datasets::cli::positive)]
     max_diff: f64,
     /// The world description that says where the levels are; by default the
     /// `world.json` beside the ground truth, when there is one.
@@ -206,20 +212,16 @@ struct EvalArgs {
     json: bool,
 }
 
-fn main() {
+fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
-    let outcome = match cli.command {
+    datasets::cli::exit_code(match cli.command {
         Command::Eval(args) => eval(&args),
         Command::Planes(args) => planes(&args),
         Command::Run(args) => run(&args),
         Command::Inspect(args) => inspect(&args),
         Command::Bench(args) => bench(&args),
         Command::Benchmark(args) => benchmark(&args),
-    };
-    if let Err(error) = outcome {
-        eprintln!("error: {error:#}");
-        std::process::exit(1);
-    }
+    })
 }
 
 fn world_beside(gt: &Path) -> Option<PathBuf> {
@@ -411,6 +413,8 @@ fn benchmark(args: &BenchmarkArgs) -> Result<()> {
 }
 
 fn run(args: &RunArgs) -> Result<()> {
+    // Refused before the work, not after it.
+    localize::run::check_output_folder(&args.out)?;
     let mut config = read_config(args.config.as_deref())?;
     if let Some(t) = args.image_tolerance {
         config.sync.image_tolerance_s = t;

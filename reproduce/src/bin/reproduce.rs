@@ -11,7 +11,7 @@ use infer::backend::CpuBackend;
 use reproduce::plan::{Plan, TrunkSource};
 
 #[derive(Debug, Parser)]
-#[command(name = "reproduce", version)]
+#[command(name = "reproduce", version, allow_negative_numbers = true)]
 struct Args {
     /// Folder for the data, runs, pictures and the report.
     #[arg(long)]
@@ -36,7 +36,11 @@ struct Args {
     backend: CpuBackend,
 }
 
-fn main() -> Result<()> {
+fn main() -> std::process::ExitCode {
+    datasets::cli::exit_code(run_main())
+}
+
+fn run_main() -> Result<()> {
     let args = Args::parse();
     let mut plan = if args.quick { Plan::quick() } else { Plan::full(args.checkpoints.clone()) };
     if args.pretrain && !args.quick {

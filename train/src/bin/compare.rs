@@ -10,7 +10,7 @@ use clap::Parser;
 use train::compare::{csv_table, markdown_table, read_run, write_loss_plots};
 
 #[derive(Debug, Parser)]
-#[command(name = "compare", version)]
+#[command(name = "compare", version, allow_negative_numbers = true)]
 struct Args {
     /// Run folders written by `train`; the first is the reference.
     #[arg(required = true)]
@@ -20,7 +20,11 @@ struct Args {
     out: PathBuf,
 }
 
-fn main() -> Result<()> {
+fn main() -> std::process::ExitCode {
+    datasets::cli::exit_code(run_main())
+}
+
+fn run_main() -> Result<()> {
     let args = Args::parse();
     let runs = args.runs.iter().map(|d| read_run(d)).collect::<Result<Vec<_>>>()?;
     if runs.iter().any(|r| r.metrics.is_none()) {
@@ -29,7 +33,7 @@ fn main() -> Result<()> {
     if args.out.exists() && !args.out.is_dir() {
         bail!("--out {}: not a folder", args.out.display());
     }
-    std::fs::create_dir_all(&args.out)?;
+    std::fs::create_dir_all(&args.out).map_err(|e| datasets::DataError::io(&args.out, e))?;
     write_loss_plots(&runs, &args.out.join("losses"))?;
     let table = markdown_table(&runs);
     datasets::atomic::write_bytes(&args.out.join("table.md"), table.as_bytes())?;

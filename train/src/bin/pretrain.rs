@@ -18,7 +18,7 @@ use infer::config::{Backbone, DEFAULT_WIDTH};
 use train::pretrain::{PretrainConfig, pretrain};
 
 #[derive(Debug, Parser)]
-#[command(name = "pretrain", version)]
+#[command(name = "pretrain", version, allow_negative_numbers = true)]
 struct Args {
     /// The network trained on the corpus; its trunk is kept.
     #[arg(long, value_enum)]
@@ -29,16 +29,22 @@ struct Args {
     #[arg(long, default_value_t = DEFAULT_WIDTH)]
     width: f32,
     /// Worlds of the corpus, each with its own geometry and appearance.
-    #[arg(long, default_value_t = CorpusConfig::default().worlds)]
+    #[arg(long, default_value_t = CorpusConfig::default().worlds, value_parser = datasets::cli::count)]
     worlds: usize,
-    #[arg(long, default_value_t = CorpusConfig::default().images_per_world)]
+    /// Generated buildings in the corpus besides the worlds (`datagen --building N`).
+    #[arg(long, default_value_t = CorpusConfig::default().buildings, value_parser = datasets::cli::count)]
+    buildings: usize,
+    /// The number of the corpus's first generated building (6 or more: 1-5 are the benchmark's).
+    #[arg(long, default_value_t = CorpusConfig::default().first_building)]
+    first_building: u32,
+    #[arg(long, default_value_t = CorpusConfig::default().images_per_world, value_parser = datasets::cli::positive_count)]
     images_per_world: usize,
     #[arg(long, default_value_t = CorpusConfig::default().seed)]
     corpus_seed: u64,
     /// Epochs over the corpus (default: 4 for faster-rcnn, 8 for the grid networks).
-    #[arg(long)]
+    #[arg(long, value_parser = datasets::cli::positive_count)]
     epochs: Option<usize>,
-    #[arg(long)]
+    #[arg(long, value_parser = datasets::cli::positive)]
     lr: Option<f64>,
     #[arg(long, default_value_t = 42)]
     seed: u64,
@@ -48,7 +54,11 @@ struct Args {
     pretrained: Option<PathBuf>,
 }
 
-fn main() -> Result<()> {
+fn main() -> std::process::ExitCode {
+    datasets::cli::exit_code(run_main())
+}
+
+fn run_main() -> Result<()> {
     let args = Args::parse();
     if args.out.exists() && !args.out.is_dir() {
         bail!("--out {}: not a folder", args.out.display());
@@ -57,6 +67,8 @@ fn main() -> Result<()> {
     config.corpus = CorpusConfig {
         seed: args.corpus_seed,
         worlds: args.worlds,
+        buildings: args.buildings,
+        first_building: args.first_building,
         images_per_world: args.images_per_world,
         ..CorpusConfig::default()
     };

@@ -11,7 +11,7 @@ use infer::pretrained::InputConvention;
 use train::{OptimizerKind, TrainConfig};
 
 #[derive(Debug, Parser)]
-#[command(name = "train", version)]
+#[command(name = "train", version, allow_negative_numbers = true)]
 struct Args {
     #[arg(long, value_enum, required_unless_present = "resume")]
     backbone: Option<Backbone>,
@@ -30,15 +30,15 @@ struct Args {
     ])]
     resume: Option<PathBuf>,
     /// Epochs (default: 24 for faster-rcnn and vgg16, 40 for alexnet).
-    #[arg(long)]
+    #[arg(long, value_parser = datasets::cli::positive_count)]
     epochs: Option<usize>,
-    #[arg(long, default_value_t = 8)]
+    #[arg(long, default_value_t = 8, value_parser = datasets::cli::positive_count)]
     batch_size: usize,
     #[arg(long, value_enum, default_value_t = OptimizerKind::Adam)]
     optimizer: OptimizerKind,
     /// Peak learning rate (default: 1e-3 for faster-rcnn and vgg16, 2e-3 for
     /// alexnet; 2e-4 when --pretrained is a whole checkpoint).
-    #[arg(long)]
+    #[arg(long, value_parser = datasets::cli::positive)]
     lr: Option<f64>,
     #[arg(long, default_value_t = 42)]
     seed: u64,
@@ -51,7 +51,7 @@ struct Args {
     #[arg(long, value_enum, default_value_t)]
     backend: CpuBackend,
     /// Width of the fully connected layers (default: 4096 x width^2, at least 64).
-    #[arg(long)]
+    #[arg(long, value_parser = datasets::cli::positive_count)]
     hidden: Option<usize>,
     /// Head of vgg16 and alexnet: convolutional (one output per cell), or
     /// torchvision's fully connected classifier with its last layer replaced.
@@ -72,14 +72,18 @@ struct Args {
     #[arg(long, requires = "pretrained")]
     pretrained_prune: bool,
     /// Keep the first N trunk convolutions at their starting weights.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = datasets::cli::count)]
     freeze: usize,
     /// Run the frozen layers on every step instead of caching their outputs.
     #[arg(long)]
     no_cache: bool,
 }
 
-fn main() -> Result<()> {
+fn main() -> std::process::ExitCode {
+    datasets::cli::exit_code(run_main())
+}
+
+fn run_main() -> Result<()> {
     let args = Args::parse();
     let (config, run) = match (&args.resume, args.backbone, &args.data, &args.out) {
         (Some(run), ..) => (None, run.clone()),
@@ -127,7 +131,7 @@ fn main() -> Result<()> {
         }
         _ => bail!("give --backbone, --data and --out, or --resume RUN_DIR"),
     };
-    std::fs::create_dir_all(&run)?;
+    std::fs::create_dir_all(&run).map_err(|e| datasets::DataError::io(&run, e))?;
     let summary = train::train(config, &run, true)?;
     let m = &summary.metrics;
     println!(

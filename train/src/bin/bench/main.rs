@@ -73,7 +73,11 @@ enum Command {
     },
 }
 
-fn main() -> Result<()> {
+fn main() -> std::process::ExitCode {
+    datasets::cli::exit_code(run_main())
+}
+
+fn run_main() -> Result<()> {
     match Cli::parse().command {
         Command::Detectors { backend, width, batch, steps, only, json, burn_kernels } => {
             detectors::run(backend, width, batch, steps, only, json, burn_kernels)
