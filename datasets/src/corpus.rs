@@ -84,6 +84,18 @@ impl CorpusConfig {
     }
 }
 
+impl CorpusConfig {
+    /// The corpus's world `k`: a variant of the paper's area for the first
+    /// `worlds`, then the generated buildings.
+    pub fn world_or_building(&self, k: usize) -> WorldConfig {
+        if k < self.worlds {
+            self.world(k)
+        } else {
+            WorldConfig { building: self.first_building + (k - self.worlds) as u32, ..WorldConfig::default() }
+        }
+    }
+}
+
 #[derive(Debug, Clone, PartialEq)]
 pub struct CorpusSummary {
     pub images: usize,
@@ -112,12 +124,7 @@ pub fn generate_corpus(out: &Path, config: &CorpusConfig, base: &DatagenConfig) 
     let views_seed = mix(config.seed ^ 0xc0_4905);
     let mut views = Vec::with_capacity(config.images());
     for k in 0..config.worlds + config.buildings {
-        let world_config = if k < config.worlds {
-            config.world(k)
-        } else {
-            WorldConfig { building: config.first_building + (k - config.worlds) as u32, ..WorldConfig::default() }
-        };
-        let world = World::new(&world_config, key(config.seed, stream::APPEARANCE, k as u64 + 1));
+        let world = World::new(&config.world_or_building(k), key(config.seed, stream::APPEARANCE, k as u64 + 1));
         let first = k * config.images_per_world;
         views.extend(render_views(out, &world, &rig, base, views_seed, first..first + config.images_per_world, &bar)?);
     }
@@ -126,4 +133,24 @@ pub fn generate_corpus(out: &Path, config: &CorpusConfig, base: &DatagenConfig) 
     let labels = write_coco_splits(out, views, &train)?;
     atomic::write_json(&marker, &stamp)?;
     Ok(CorpusSummary { images: config.images(), labels, reused: false })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn generated_buildings_follow_the_variants_and_never_the_benchmarks() {
+        let config =
+            CorpusConfig { worlds: 2, buildings: 3, first_building: 40, images_per_world: 5, ..Default::default() };
+        assert_eq!(config.images(), 25);
+        assert_eq!(config.world_or_building(1).building, 0);
+        assert_eq!(config.world_or_building(1), config.world(1));
+        assert_eq!(config.world_or_building(2).building, 40);
+        assert_eq!(config.world_or_building(4).building, 42);
+        let benchmark = CorpusConfig { buildings: 1, first_building: 5, ..config.clone() };
+        assert!(benchmark.validate().unwrap_err().contains("benchmark's buildings 1-5"));
+        assert!(CorpusConfig { worlds: 0, buildings: 0, ..config.clone() }.validate().is_err());
+        assert!(CorpusConfig { images_per_world: 1 << 20, ..config }.validate().unwrap_err().contains("at most"));
+    }
 }

@@ -78,10 +78,11 @@ pub fn pretrain(out: &Path, config: &PretrainConfig, show_progress: bool) -> Res
     let corpus = generate_corpus(&corpus_dir, &config.corpus, &DatagenConfig::default())?;
     let corpus_seconds = started.elapsed().as_secs_f64();
     eprintln!(
-        "corpus: {} images, {} labels from {} worlds in {}{}",
+        "corpus: {} images, {} labels from {} worlds and {} generated buildings in {}{}",
         corpus.images,
         corpus.labels,
         config.corpus.worlds,
+        config.corpus.buildings,
         corpus_dir.display(),
         if corpus.reused { " (reused)".to_string() } else { format!(" ({corpus_seconds:.0} s)") }
     );
