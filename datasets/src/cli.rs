@@ -39,19 +39,19 @@ pub fn exit_code(outcome: anyhow::Result<()>) -> ExitCode {
 
 /// A count flag that must be at least 1 (`--epochs`, `--frames`, ...).
 pub fn positive_count(text: &str) -> Result<usize, String> {
-    match text.trim().parse::<i128>() {
-        Ok(n) if n >= 1 && n <= usize::MAX as i128 => Ok(n as usize),
-        Ok(n) => Err(format!("must be a whole number of at least 1, got {n}")),
-        Err(_) => Err(format!("must be a whole number of at least 1, got `{text}`")),
-    }
+    whole_number(text, 1)
 }
 
 /// A count flag that may be 0.
 pub fn count(text: &str) -> Result<usize, String> {
+    whole_number(text, 0)
+}
+
+fn whole_number(text: &str, least: i128) -> Result<usize, String> {
     match text.trim().parse::<i128>() {
-        Ok(n) if n >= 0 && n <= usize::MAX as i128 => Ok(n as usize),
-        Ok(n) => Err(format!("must be a whole number of at least 0, got {n}")),
-        Err(_) => Err(format!("must be a whole number of at least 0, got `{text}`")),
+        Ok(n) if n >= least && n <= usize::MAX as i128 => Ok(n as usize),
+        Ok(n) => Err(format!("must be a whole number of at least {least}, got {n}")),
+        Err(_) => Err(format!("must be a whole number of at least {least}, got `{text}`")),
     }
 }
 

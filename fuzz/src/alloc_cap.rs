@@ -21,15 +21,13 @@ pub struct CappedAllocator;
 // allocation failure, as it would for an exhausted machine).
 unsafe impl GlobalAlloc for CappedAllocator {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        if layout.size() > CAP_BYTES.load(Ordering::Relaxed) {
-            report(layout.size());
+        if refused(layout.size()) {
             return std::ptr::null_mut();
         }
         unsafe { System.alloc(layout) }
     }
     unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
-        if layout.size() > CAP_BYTES.load(Ordering::Relaxed) {
-            report(layout.size());
+        if refused(layout.size()) {
             return std::ptr::null_mut();
         }
         unsafe { System.alloc_zeroed(layout) }
@@ -38,16 +36,20 @@ unsafe impl GlobalAlloc for CappedAllocator {
         unsafe { System.dealloc(ptr, layout) }
     }
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        if new_size > CAP_BYTES.load(Ordering::Relaxed) {
-            report(new_size);
+        if refused(new_size) {
             return std::ptr::null_mut();
         }
         unsafe { System.realloc(ptr, layout, new_size) }
     }
 }
 
-fn report(size: usize) {
+/// Whether an allocation of `size` bytes is over the cap; if so, says so.
+fn refused(size: usize) -> bool {
+    if size <= CAP_BYTES.load(Ordering::Relaxed) {
+        return false;
+    }
     // Formatting a few words allocates far below the cap.
     let (target, case) = CURRENT.try_with(Cell::get).unwrap_or(("", 0));
     eprintln!("fuzz: an allocation of {size} bytes was refused in target `{target}`, case {case}");
+    true
 }
