@@ -62,10 +62,10 @@ fn yes() -> bool {
 }
 
 /// Peak learning rate when every layer starts from a trained detector (a
-/// checkpoint folder as `pretrained`): a fifth of the from-trunk default.
-/// Measured on faster-rcnn fine-tuned on the default data from its
-/// corpus-pretrained detector: the validation loss stays at 0.38-0.43
-/// over 16 epochs with it, 0.42-0.53 with 1e-3.
+/// checkpoint folder as `pretrained`): a fifth of the from-trunk default,
+/// because the from-trunk rate moves a detector that already fits away from
+/// what it knows (the validation losses of both are in the README, Transfer
+/// learning and comparing runs).
 pub const WHOLE_NETWORK_LR: f64 = 2e-4;
 
 impl TrainConfig {
