@@ -4,7 +4,7 @@
 
 use datasets::math::{Point3, Pose3, Vec3};
 use datasets::world::block::BlockKind;
-use datasets::world::layout::Floor;
+use datasets::world::layout::{CornerKind, Floor};
 use datasets::world::lidar::{LidarConfig, scan, sweep};
 use datasets::world::people::Walker;
 use datasets::world::route::{Route, pose_on_floor};
@@ -68,14 +68,26 @@ fn generated_buildings_hold_every_part_and_a_drivable_route() {
         assert!(layout.surfaces.iter().any(|s| s.kind == SurfaceKind::Glass), "building {n}: no glass");
         assert!(!layout.walkers.is_empty(), "building {n}: nobody walks");
         assert!(layout.regions.iter().any(|r| r.name.contains("doorway")), "building {n}: no doorways");
-        // Landmarks only where three planes meet: none on furniture or glass.
+        // Landmarks only where three planes meet: none on tables, chairs or
+        // glass; a closed shelf is a box, with the eight corners of a crate.
         for c in &layout.corners {
             let p = [c.position[0], c.position[1]];
             let on_clutter = layout.blocks.iter().any(|b| {
-                matches!(b.kind, BlockKind::Table | BlockKind::Chair | BlockKind::Shelf | BlockKind::Glass)
-                    && b.distance(p) < 1e-9
+                matches!(b.kind, BlockKind::Table | BlockKind::Chair | BlockKind::Glass) && b.distance(p) < 1e-9
             });
             assert!(!on_clutter, "building {n}: a landmark corner at {:?} lies on clutter", c.position);
+        }
+        for shelf in layout.blocks.iter().filter(|b| b.kind == BlockKind::Shelf) {
+            for [x, y] in shelf.footprint() {
+                for (z, kind) in [(shelf.z[0], CornerKind::BoxBottom), (shelf.z[1], CornerKind::BoxTop)] {
+                    let labelled = layout.corners.iter().any(|c| {
+                        c.kind == kind
+                            && (c.position[0] - x).hypot(c.position[1] - y) < 1e-9
+                            && (c.position[2] - z).abs() < 1e-9
+                    });
+                    assert!(labelled, "building {n}: shelf corner {:?} is not a box corner", [x, y, z]);
+                }
+            }
         }
     }
     assert!(hall_ramps > 0, "no building has a ramp inside a hall");

@@ -1,8 +1,9 @@
 //! Upright prisms on a rotated rectangular footprint: the pillars, angled
 //! partitions, furniture, crates and glass panes of a generated building.
 //! Each kind says which of its corners are landmarks (where three planes
-//! meet: floor or ceiling and two faces, or three faces of a crate) and which
-//! are clutter a detector must ignore (furniture, glass).
+//! meet: floor or ceiling and two faces, or three faces of a crate or a
+//! closed shelf) and which are clutter a detector must ignore (tables and
+//! chairs, whose thin tops and legs meet no third plane, and glass).
 
 use serde::Serialize;
 
@@ -25,7 +26,9 @@ pub enum BlockKind {
     Table,
     /// A seat on four legs with a back rest.
     Chair,
-    /// A tall closed shelf.
+    /// A tall closed shelf: a box like a crate, so its corners are box corners
+    /// (a corner the detector sees but is told is background teaches it to
+    /// miss crates).
     Shelf,
 }
 
@@ -131,7 +134,7 @@ impl Block {
     pub fn corners(&self) -> Vec<Corner> {
         let kinds = match self.kind {
             BlockKind::Pillar | BlockKind::Partition => [CornerKind::Floor, CornerKind::Ceiling],
-            BlockKind::Crate => [CornerKind::BoxBottom, CornerKind::BoxTop],
+            BlockKind::Crate | BlockKind::Shelf => [CornerKind::BoxBottom, CornerKind::BoxTop],
             _ => return Vec::new(),
         };
         let mut corners = Vec::new();
