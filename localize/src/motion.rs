@@ -7,7 +7,8 @@
 use datasets::formats::PointCloud;
 use datasets::math::Pose3;
 
-use crate::ekf::{Ekf, SensorReplay};
+use crate::ekf::Ekf;
+use crate::sensor_replay::SensorReplay;
 
 /// World-from-robot poses at chosen times around `stamp`.
 pub struct FrameMotion {

@@ -71,6 +71,56 @@ pub struct FrameReport {
     pub total_ms: f64,
 }
 
+impl FrameReport {
+    /// A frame's report before its stages ran: the pose is the filter's.
+    fn new(stamp: f64, pose: Pose3, detections: usize, landmarks: usize, detect_ms: f64) -> Self {
+        Self {
+            stamp,
+            pose,
+            status: FrameStatus::FirstFrame,
+            detections,
+            planes: 0,
+            corners: 0,
+            matches: 0,
+            correspondences: 0,
+            plane_correspondences: 0,
+            landmarks,
+            detect_ms,
+            normals_ms: 0.0,
+            planes_ms: 0.0,
+            corners_ms: 0.0,
+            fusion_ms: 0.0,
+            pose_ms: 0.0,
+            total_ms: 0.0,
+        }
+    }
+
+    fn record_geometry(&mut self, geometry: &Geometry) {
+        self.normals_ms = geometry.normals_ms;
+        self.planes_ms = geometry.planes_ms;
+        self.corners_ms = geometry.corners_ms;
+        self.planes = geometry.planes.planes.len();
+        self.corners = geometry.corners.corners.len();
+    }
+
+    /// The report with the filter's pose after the frame and how it came about.
+    fn finish(mut self, ekf: &Ekf, status: FrameStatus, started: Instant) -> Self {
+        self.pose = ekf.pose();
+        self.status = status;
+        self.total_ms = elapsed_ms(started);
+        self
+    }
+}
+
+fn elapsed_ms(since: Instant) -> f64 {
+    since.elapsed().as_secs_f64() * 1e3
+}
+
+/// Robot-frame points placed in the world by `pose`.
+fn in_world(in_robot: &[Vec3], pose: &Pose3) -> Vec<Vec3> {
+    in_robot.iter().map(|c| (pose * nalgebra::Point3::from(*c)).coords).collect()
+}
+
 /// A frame's 2D corners and where the camera was when it saw them.
 pub struct CameraCorners {
     /// The detected corners (or why there are none).
@@ -133,78 +183,91 @@ impl Localizer {
         started: Instant,
     ) -> FrameReport {
         let CameraCorners { pixels, lidar_from_camera, detect_ms } = camera;
-        let lidar_from_camera = &lidar_from_camera;
+        // The first frame anchors the maps at the reference pose.
         let first = self.frames_seen == 0;
         self.frames_seen += 1;
-        let mut report = FrameReport {
-            stamp,
-            pose: ekf.pose(),
-            status: FrameStatus::FirstFrame,
-            detections: pixels.as_ref().map_or(0, Vec::len),
-            planes: 0,
-            corners: 0,
-            matches: 0,
-            correspondences: 0,
-            plane_correspondences: 0,
-            landmarks: self.map.landmarks.len(),
-            detect_ms,
-            normals_ms: 0.0,
-            planes_ms: 0.0,
-            corners_ms: 0.0,
-            fusion_ms: 0.0,
-            pose_ms: 0.0,
-            total_ms: 0.0,
-        };
-        let finish = |mut report: FrameReport, ekf: &Ekf, status: FrameStatus| {
-            report.pose = ekf.pose();
-            report.status = status;
-            report.total_ms = started.elapsed().as_secs_f64() * 1e3;
-            report
-        };
+        let detections = pixels.as_ref().map_or(0, Vec::len);
+        let mut report = FrameReport::new(stamp, ekf.pose(), detections, self.map.landmarks.len(), detect_ms);
+        // Without the cloud's planes and corners the filter's pose stands.
         let geometry = match geometry {
             Ok(g) => g,
-            Err(why) => return finish(report, ekf, FrameStatus::BadCloud(why)),
+            Err(why) => return report.finish(ekf, FrameStatus::BadCloud(why), started),
         };
-        report.normals_ms = geometry.normals_ms;
-        report.planes_ms = geometry.planes_ms;
-        report.corners_ms = geometry.corners_ms;
-        report.planes = geometry.planes.planes.len();
-        report.corners = geometry.corners.corners.len();
+        report.record_geometry(&geometry);
+        // Walls: the frame's planes paired with the plane landmarks at the predicted pose.
         let predicted = ekf.pose();
-        let robot_from_lidar = self.calibration.robot_from_lidar;
-        let robot_planes: Vec<RobotPlane> =
-            geometry.planes.planes.iter().map(|p| RobotPlane::from_lidar(p, &robot_from_lidar)).collect();
-        let plane_matches = self.plane_correspondences(&robot_planes, &predicted);
-        report.plane_correspondences = plane_matches.len();
+        let planes = self.robot_planes(&geometry);
+        let walls = self.plane_correspondences(&planes, &predicted);
+        report.plane_correspondences = walls.len();
+        // Without 2D corners the walls alone correct the pose.
         let pixels = match pixels {
             Ok(p) => p,
             Err(why) => {
-                // Walls can still correct the pose; corners cannot be found.
-                let corrected =
-                    !first && self.solver.correct_with_planes(ekf, &[], &plane_matches, self.plane_sigmas()).is_some();
-                self.observe_planes(&robot_planes, &ekf.pose());
-                let walls = if corrected { plane_matches.len() } else { 0 };
-                return finish(report, ekf, FrameStatus::NoImage { why, walls });
+                let status = self.correct_with_walls_only(ekf, first, &planes, &walls, why);
+                return report.finish(ekf, status, started);
             }
         };
+        // Fusion: the 2D corners cast into the cloud, paired with corner landmarks.
         let fusion_start = Instant::now();
+        let (corners_in_robot, corners) =
+            self.corner_correspondences(&pixels, &lidar_from_camera, &geometry, &predicted);
+        report.matches = corners_in_robot.len();
+        report.correspondences = corners.len();
+        report.fusion_ms = elapsed_ms(fusion_start);
+        // Corners and walls correct the filter; the maps grow with what the corrected pose places.
+        let pose_start = Instant::now();
+        let status = if first { FrameStatus::FirstFrame } else { self.correct(ekf, &corners, &walls) };
+        self.grow_maps(&corners_in_robot, &planes, &ekf.pose());
+        report.pose_ms = elapsed_ms(pose_start);
+        report.landmarks = self.map.landmarks.len();
+        report.finish(ekf, status, started)
+    }
+
+    /// The frame's planes in the robot frame.
+    fn robot_planes(&self, geometry: &Geometry) -> Vec<RobotPlane> {
+        let robot_from_lidar = self.calibration.robot_from_lidar;
+        geometry.planes.planes.iter().map(|p| RobotPlane::from_lidar(p, &robot_from_lidar)).collect()
+    }
+
+    /// A frame without 2D corners: its walls correct the pose (except on the
+    /// first frame) and join the plane map.
+    fn correct_with_walls_only(
+        &mut self,
+        ekf: &mut Ekf,
+        first: bool,
+        planes: &[RobotPlane],
+        walls: &[PlaneCorrespondence],
+        why: String,
+    ) -> FrameStatus {
+        let corrected = !first && self.solver.correct_with_planes(ekf, &[], walls, self.plane_sigmas()).is_some();
+        self.observe_planes(planes, &ekf.pose());
+        FrameStatus::NoImage { why, walls: if corrected { walls.len() } else { 0 } }
+    }
+
+    /// The 2D corners matched to the cloud's 3D corners (in the robot frame)
+    /// and those of them associated with trusted corner landmarks at the
+    /// predicted pose.
+    fn corner_correspondences(
+        &self,
+        pixels: &[[f64; 2]],
+        lidar_from_camera: &Pose3,
+        geometry: &Geometry,
+        predicted: &Pose3,
+    ) -> (Vec<Vec3>, Vec<Correspondence>) {
         let matches = self.fusion.fuse(
-            &pixels,
+            pixels,
             &self.calibration.camera,
             lidar_from_camera,
             &geometry.planes,
             &geometry.corners,
             &geometry.points,
         );
-        report.matches = matches.len();
         let in_robot: Vec<Vec3> = matches
             .iter()
-            .map(|m| self.calibration.robot_from_lidar * nalgebra::Point3::from(m.position))
-            .map(|p| p.coords)
+            .map(|m| (self.calibration.robot_from_lidar * nalgebra::Point3::from(m.position)).coords)
             .collect();
-        let in_world: Vec<Vec3> = in_robot.iter().map(|c| (predicted * nalgebra::Point3::from(*c)).coords).collect();
-        let association = self.map.associate(&in_world);
-        let correspondences: Vec<Correspondence> = in_robot
+        let association = self.map.associate(&in_world(&in_robot, predicted));
+        let correspondences = in_robot
             .iter()
             .zip(&association)
             .filter_map(|(c, a)| {
@@ -212,27 +275,25 @@ impl Localizer {
                     .map(|k| Correspondence { in_robot: *c, in_world: self.map.landmarks[k].position })
             })
             .collect();
-        report.fusion_ms = fusion_start.elapsed().as_secs_f64() * 1e3;
-        report.correspondences = correspondences.len();
-        let pose_start = Instant::now();
-        let status = if first {
-            FrameStatus::FirstFrame
-        } else {
-            let (corners, walls) = (correspondences.len(), plane_matches.len());
-            match self.solver.correct_with_planes(ekf, &correspondences, &plane_matches, self.plane_sigmas()) {
-                Some(_) => FrameStatus::Fused { corners, walls },
-                None => FrameStatus::TooFewMatches { corners, walls },
-            }
-        };
-        // The map grows with the corners placed by the corrected pose.
-        let corrected = ekf.pose();
-        let in_world: Vec<Vec3> = in_robot.iter().map(|c| (corrected * nalgebra::Point3::from(*c)).coords).collect();
-        let association = self.map.associate(&in_world);
-        self.map.observe(&in_world, &association);
-        self.observe_planes(&robot_planes, &corrected);
-        report.pose_ms = pose_start.elapsed().as_secs_f64() * 1e3;
-        report.landmarks = self.map.landmarks.len();
-        finish(report, ekf, status)
+        (in_robot, correspondences)
+    }
+
+    /// Corrects the filter with corner and wall correspondences.
+    fn correct(&self, ekf: &mut Ekf, corners: &[Correspondence], walls: &[PlaneCorrespondence]) -> FrameStatus {
+        let (c, w) = (corners.len(), walls.len());
+        match self.solver.correct_with_planes(ekf, corners, walls, self.plane_sigmas()) {
+            Some(_) => FrameStatus::Fused { corners: c, walls: w },
+            None => FrameStatus::TooFewMatches { corners: c, walls: w },
+        }
+    }
+
+    /// The corner and plane maps take the frame's corners and planes placed
+    /// by `pose`.
+    fn grow_maps(&mut self, corners_in_robot: &[Vec3], planes: &[RobotPlane], pose: &Pose3) {
+        let corners = in_world(corners_in_robot, pose);
+        let association = self.map.associate(&corners);
+        self.map.observe(&corners, &association);
+        self.observe_planes(planes, pose);
     }
 
     fn plane_sigmas(&self) -> PlaneSigmas {

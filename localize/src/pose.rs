@@ -10,8 +10,9 @@ use datasets::math::Vec3;
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
-use crate::ekf::{Covariance, Ekf, STATES, State, pose_of, rotation, wrap};
-use crate::eval::umeyama;
+use crate::ekf::{Covariance, Ekf, STATES, State, pose_of};
+use crate::euler::{rotation, wrap};
+use crate::similarity::umeyama;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]

@@ -12,12 +12,13 @@ use serde::Serialize;
 
 use crate::config::LocalizeConfig;
 use crate::corner_source::CornerSource;
-use crate::ekf::{Ekf, SensorReplay};
+use crate::ekf::Ekf;
 use crate::error::Result;
 use crate::eval::{Alignment, ErrorSummary, compare};
 use crate::levels::{LevelMap, SegmentMetrics};
 use crate::motion::FrameMotion;
 use crate::pipeline::{CameraCorners, FrameReport, Localizer};
+use crate::sensor_replay::SensorReplay;
 use crate::sequence::{FrameInput, SensorSequence};
 
 pub struct RunResult {

@@ -3,8 +3,9 @@
 
 use datasets::math::{Pose3, Vec3};
 use datasets::world::motion::{MotionConfig, simulate_imu, simulate_odometry};
-use localize::ekf::{Ekf, EkfConfig, SensorReplay};
+use localize::ekf::{Ekf, EkfConfig};
 use localize::pose::{Correspondence, PoseConfig, PoseSolver};
+use localize::sensor_replay::SensorReplay;
 use nalgebra::{Translation3, UnitQuaternion};
 
 /// A 2 m radius turn at 0.1 m/s that, from t = 30 s, tilts nose-up over 2 s

@@ -5,7 +5,8 @@ use std::path::PathBuf;
 
 use datasets::formats::{Trajectory, read_trajectory};
 use datasets::math::{Pose3, Vec3};
-use localize::eval::{Alignment, associate, compare, umeyama};
+use localize::eval::{Alignment, associate, compare};
+use localize::similarity::umeyama;
 use nalgebra::{Translation3, UnitQuaternion};
 
 /// The package folder, read when the test runs (cargo sets it), so that a
