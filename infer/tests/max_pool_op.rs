@@ -60,18 +60,27 @@ fn a_nan_in_a_window_propagates_as_in_burn() {
 }
 
 #[test]
-fn padded_pools_and_other_devices_take_burns_path() {
+fn padded_pools_and_other_devices_are_right_too() {
+    // The native pool serves unpadded pools on the flex device; the rest goes
+    // through Burn's, which must still pool. Inputs whose maxima are known.
     #[allow(deprecated)]
     let device = Device::ndarray();
     let pool = MaxPool2dConfig::new([2, 2]).with_strides([2, 2]).init();
-    let x = Tensor::<4>::ones([1, 2, 6, 6], &device);
-    assert_eq!(values(max_pool2d(&pool, x.clone())), values(pool.forward(x)));
+    // x[r][c] = 10 r + c on a 4 x 6 map: a 2 x 2 window's maximum is its
+    // bottom-right value.
+    let x = Tensor::<4>::from_data(
+        TensorData::new((0..4).flat_map(|r| (0..6).map(move |c| (10 * r + c) as f32)).collect(), [1, 1, 4, 6]),
+        &device,
+    );
+    assert_eq!(values(max_pool2d(&pool, x)), [11.0, 13.0, 15.0, 31.0, 33.0, 35.0]);
 
     let device = Device::flex();
     let pool = MaxPool2dConfig::new([3, 3])
         .with_strides([2, 2])
         .with_padding(burn::nn::PaddingConfig2d::Explicit(1, 1, 1, 1))
         .init();
+    // x[r][c] = 6 r + c; the window of output (i, j) covers rows 2i-1..=2i+1
+    // and columns 2j-1..=2j+1, so its maximum is x[2i+1][2j+1].
     let x = Tensor::<4>::from_data(TensorData::new((0..36).map(|v| v as f32).collect(), [1, 1, 6, 6]), &device);
-    assert_eq!(values(max_pool2d(&pool, x.clone())), values(pool.forward(x)));
+    assert_eq!(values(max_pool2d(&pool, x)), [7.0, 9.0, 11.0, 19.0, 21.0, 23.0, 31.0, 33.0, 35.0]);
 }

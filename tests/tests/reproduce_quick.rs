@@ -2,9 +2,13 @@
 //! three networks (the vgg16 and alexnet trunks, then the whole faster-rcnn
 //! from the vgg16 trunk), fine-tune three networks, compare, localize with each, report;
 //! then a second invocation that reuses every finished stage, and a third
-//! with one changed setting that redoes only what depends on it.
+//! with one changed setting that redoes only what depends on it. Every
+//! figure the report states is recomputed here from the files the run left
+//! (the checkpoints on the test split, the trajectories against the ground
+//! truth), so a report that mixed up runs or misquoted a number fails.
 
 use infer::config::Backbone;
+use localize::eval::{Alignment, compare};
 use reproduce::plan::Plan;
 
 #[test]
@@ -19,20 +23,48 @@ fn quick_reproduction_writes_a_sane_report_and_resumes() {
     let starts: Vec<_> = results.trunks.iter().map(|t| (t.family, t.path.is_dir())).collect();
     assert_eq!(starts, [(Backbone::Vgg16, false), (Backbone::Alexnet, false), (Backbone::FasterRcnn, true)]);
     assert_eq!(results.runs.len(), 3);
+    let test_set = out.join("data/detection/test.json");
     for r in &results.runs {
-        assert!((0.0..=1.0).contains(&r.metrics.ap50), "{:?} AP {}", r.backbone, r.metrics.ap50);
         assert!(r.final_train_loss.is_finite() && r.final_train_loss > 0.0, "{:?}", r);
-        assert!(r.run.join("checkpoint/model.bpk").is_file());
+        // The metrics are those of the checkpoint that was written, on the test split.
+        let detector = infer::Detector::load(&r.run.join("checkpoint"), plan.backend.device()).unwrap();
+        let set = infer::labeled::load_coco_set(&test_set, &detector.config.preprocess).unwrap();
+        let again = infer::eval::evaluate_set(&detector, &set, 4);
+        assert!(
+            (again.ap50 - r.metrics.ap50).abs() < 1e-4,
+            "{:?}: AP@0.5 recorded {} but the checkpoint scores {}",
+            r.backbone,
+            r.metrics.ap50,
+            again.ap50
+        );
     }
     assert_eq!(results.localization.len(), 3);
+    let truth = datasets::formats::read_tum(&out.join("data/sequence/groundtruth.txt")).unwrap();
+    let mut fused_rows = Vec::new();
     for l in &results.localization {
         let all = |rows: &[reproduce::experiment::ErrorRow]| rows.iter().find(|r| r.level == "all").unwrap().clone();
         let (fused, odometry) = (all(&l.fused), all(&l.odometry_imu));
         assert_eq!(fused.matched, results.data.frames);
-        assert!(fused.ate_rmse.is_finite() && fused.ate_rmse < 0.5, "{:?}: fused ATE {}", l.backbone, fused.ate_rmse);
         assert!(fused.ate_rmse < odometry.ate_rmse, "{:?}: fused {fused:?} vs {odometry:?}", l.backbone);
         assert!(l.fused.iter().any(|r| r.level == "ramps"), "{:?}", l.fused);
         assert!(l.dir.join("trajectory.png").is_file());
+        // The errors are those of the trajectory file against the ground truth.
+        let estimate = datasets::formats::read_tum(&l.dir.join("trajectory.txt")).unwrap();
+        let e = compare(&truth, &estimate, Alignment::None, 0.01).unwrap().summary;
+        assert_eq!(e.matched, fused.matched);
+        for (name, recorded, recomputed) in [
+            ("x", fused.rmse_x, e.rmse_x),
+            ("y", fused.rmse_y, e.rmse_y),
+            ("z", fused.rmse_z, e.rmse_z),
+            ("ATE", fused.ate_rmse, e.ate_rmse),
+        ] {
+            assert!(
+                (recorded - recomputed).abs() < 1e-6,
+                "{:?}: {name} RMSE recorded {recorded} but trajectory.txt gives {recomputed}",
+                l.backbone
+            );
+        }
+        fused_rows.push((l.backbone, fused));
     }
     for file in ["report.md", "plan.json", "compare/losses.png", "compare/losses.svg", "compare/table.csv"] {
         assert!(out.join(file).is_file(), "{file} missing");
@@ -46,6 +78,14 @@ fn quick_reproduction_writes_a_sane_report_and_resumes() {
         assert!(report.contains(needle), "report lacks {needle}:\n{report}");
     }
     assert!(!report.contains("NaN") && !report.contains("not run"), "{report}");
+    // Table 2 quotes each backbone's own errors.
+    for (backbone, e) in &fused_rows {
+        let row = format!(
+            "| fused, {backbone} | all | {} | {:.4} | {:.4} | {:.4} | {:.4} |",
+            e.matched, e.rmse_x, e.rmse_y, e.rmse_z, e.ate_rmse
+        );
+        assert!(report.contains(&row), "report lacks {row}:\n{report}");
+    }
 
     // Run again: nothing to do but the report.
     let again = reproduce::reproduce(out, &plan, false).unwrap();
