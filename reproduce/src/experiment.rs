@@ -6,7 +6,6 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use anyhow::{Context, Result, bail};
 use infer::config::Backbone;
 use infer::metrics::EvalMetrics;
 use localize::corner_source::CornerSource;
@@ -16,6 +15,7 @@ use serde::{Deserialize, Serialize};
 use train::TrainConfig;
 use train::compare::{RunRecord, csv_table, markdown_table, read_run, write_loss_plots};
 
+use crate::error::{ReproduceError, Result};
 use crate::plan::{FineTune, Plan, TrunkSource, pretrained_families, starts_from_whole_network};
 use crate::stage::{file_fingerprint, run_stage};
 
@@ -105,9 +105,13 @@ fn announce(step: usize, total: usize, what: &str) {
 
 pub fn run(out: &Path, plan: &Plan, show_progress: bool) -> Result<Results> {
     if out.exists() && !out.is_dir() {
-        bail!("--out {}: exists and is not a folder", out.display());
+        return Err(ReproduceError::Missing { path: out.to_path_buf(), what: "exists and is not a folder".into() });
     }
-    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    std::fs::create_dir_all(out).map_err(|source| ReproduceError::Io {
+        path: out.to_path_buf(),
+        what: "create the folder",
+        source,
+    })?;
     let families = pretrained_families(&plan.runs);
     let total = 1 + families.len() + plan.runs.len() * 2 + 1;
     let mut step = 0;
@@ -142,7 +146,7 @@ pub fn run(out: &Path, plan: &Plan, show_progress: bool) -> Result<Results> {
         note(was, format!("training {}", ft.backbone));
         runs.push(outputs);
     }
-    let records = runs.iter().map(|r| read_run(&r.run)).collect::<Result<Vec<_>>>()?;
+    let records = runs.iter().map(|r| read_run(&r.run)).collect::<Result<Vec<_>, _>>()?;
     let compare_dir = out.join("compare");
     std::fs::create_dir_all(&compare_dir).map_err(|e| datasets::DataError::io(&compare_dir, e))?;
     write_loss_plots(&records, &compare_dir.join("losses"))?;
@@ -240,11 +244,13 @@ fn trunk_stage(
             let dir = checkpoints.join("pretrained").join(family.name());
             let path = start_path(&dir, family);
             if !path.exists() {
-                bail!(
-                    "{}: the shipped pretrained {family} is missing; run from the repository's root, or pass \
-                     --pretrain to pretrain it on a generated corpus",
-                    path.display()
-                );
+                return Err(ReproduceError::Missing {
+                    path,
+                    what: format!(
+                        "the shipped pretrained {family} is missing; run from the repository's root, or pass \
+                         --pretrain to pretrain it on a generated corpus"
+                    ),
+                });
             }
             let corpus_ap50 = datasets::atomic::read_text(&dir.join(train::pretrain::META_FILE))
                 .ok()
@@ -264,10 +270,11 @@ fn trunk_stage(
             let mut config = plan.pretrain_config(family).expect("pretraining planned");
             let mut from = None;
             if family == Backbone::FasterRcnn {
-                let vgg16 = before
-                    .iter()
-                    .find(|t| t.family == Backbone::Vgg16)
-                    .context("faster-rcnn's pretraining starts from the vgg16 trunk, which was not made")?;
+                let vgg16 =
+                    before.iter().find(|t| t.family == Backbone::Vgg16).ok_or_else(|| ReproduceError::Missing {
+                        path: out.join("pretrain").join(Backbone::Vgg16.name()),
+                        what: "faster-rcnn's pretraining starts from the vgg16 trunk, which was not made".into(),
+                    })?;
                 config.pretrained = Some(vgg16.path.clone());
                 from = Some(vgg16.fingerprint.clone());
             }
@@ -315,7 +322,11 @@ fn fine_tune(
         } else {
             if run.exists() {
                 eprintln!("    {} holds a run with other settings: starting it over", run.display());
-                std::fs::remove_dir_all(&run).with_context(|| format!("clearing {}", run.display()))?;
+                std::fs::remove_dir_all(&run).map_err(|source| ReproduceError::Io {
+                    path: run.clone(),
+                    what: "clear the folder",
+                    source,
+                })?;
             }
             train::train(Some(config.clone()), &run, show_progress)?
         };

@@ -2,18 +2,20 @@
 //! pretrained networks, fine-tune the three networks, compare their loss
 //! curves, localize the sequence with each detector and write a report.
 
+pub mod error;
 pub mod experiment;
 pub mod plan;
 pub mod report;
 pub mod stage;
 
+pub use error::ReproduceError;
 pub use experiment::Results;
 pub use plan::Plan;
 
 use std::path::Path;
 use std::time::Instant;
 
-use anyhow::Result;
+use error::Result;
 
 pub const REPORT_FILE: &str = "report.md";
 

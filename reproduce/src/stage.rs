@@ -5,7 +5,7 @@
 
 use std::path::Path;
 
-use anyhow::{Context, Result};
+use crate::error::{ReproduceError, Result};
 use serde::Serialize;
 use serde::de::DeserializeOwned;
 
@@ -28,7 +28,7 @@ pub fn run_stage<I: Serialize, O: Serialize + DeserializeOwned>(
     inputs: &I,
     run: impl FnOnce() -> Result<O>,
 ) -> Result<(O, bool)> {
-    let inputs = serde_json::to_value(inputs).context("recording a stage's inputs")?;
+    let inputs = serde_json::to_value(inputs)?;
     if let Some(outputs) = finished(dir, &inputs) {
         return Ok((outputs, true));
     }
@@ -36,10 +36,18 @@ pub fn run_stage<I: Serialize, O: Serialize + DeserializeOwned>(
     // starts rewriting it (and a stage may refuse files it did not write).
     let record = dir.join(RECORD_FILE);
     if record.exists() {
-        std::fs::remove_file(&record).with_context(|| format!("removing {}", record.display()))?;
+        std::fs::remove_file(&record).map_err(|source| ReproduceError::Io {
+            path: record.clone(),
+            what: "remove",
+            source,
+        })?;
     }
     let outputs = run()?;
-    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    std::fs::create_dir_all(dir).map_err(|source| ReproduceError::Io {
+        path: dir.to_path_buf(),
+        what: "create the folder",
+        source,
+    })?;
     let record = serde_json::json!({ "inputs": inputs, "outputs": serde_json::to_value(&outputs)? });
     datasets::atomic::write_json(&dir.join(RECORD_FILE), &record)?;
     Ok((outputs, false))
@@ -48,7 +56,8 @@ pub fn run_stage<I: Serialize, O: Serialize + DeserializeOwned>(
 /// A stable fingerprint of a file's bytes (FNV-1a, 64 bits), so that a
 /// stage that reads a file reruns when the file changes.
 pub fn file_fingerprint(path: &Path) -> Result<String> {
-    let bytes = std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))?;
+    let bytes =
+        std::fs::read(path).map_err(|source| ReproduceError::Io { path: path.to_path_buf(), what: "read", source })?;
     let mut hash: u64 = 0xcbf2_9ce4_8422_2325;
     for b in bytes {
         hash ^= u64::from(b);
@@ -81,7 +90,9 @@ mod tests {
     #[test]
     fn a_failed_stage_leaves_no_record() {
         let dir = tempfile::tempdir().unwrap();
-        let failed: Result<(u32, bool)> = run_stage(dir.path(), &1, || anyhow::bail!("interrupted"));
+        let failed: Result<(u32, bool)> = run_stage(dir.path(), &1, || {
+            Err(ReproduceError::Missing { path: dir.path().to_path_buf(), what: "interrupted".into() })
+        });
         assert!(failed.is_err());
         assert!(!dir.path().join(RECORD_FILE).exists());
     }

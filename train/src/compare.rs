@@ -5,7 +5,6 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result, bail};
 use datasets::plot::{canvas, plot_error, register_font, write_png};
 use infer::checkpoint::{self, CheckpointMeta};
 use infer::metrics::EvalMetrics;
@@ -14,6 +13,7 @@ use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 
 use crate::config::TrainConfig;
+use crate::error::{Result, TrainError};
 use crate::trainer::{CHECKPOINT_DIR, CONFIG_FILE, LOSSES_FILE, METRICS_FILE};
 
 /// One point of a loss curve.
@@ -81,22 +81,32 @@ impl RunRecord {
 pub fn read_run(dir: &Path) -> Result<RunRecord> {
     let config_path = dir.join(CONFIG_FILE);
     if !config_path.is_file() {
-        bail!("{}: not a training run (no {CONFIG_FILE})", dir.display());
+        return Err(TrainError::Folder {
+            path: dir.to_path_buf(),
+            what: format!("not a training run (no {CONFIG_FILE})"),
+        });
     }
     let text = datasets::atomic::read_text(&config_path)?;
-    let config: TrainConfig =
-        serde_json::from_str(&text).with_context(|| format!("{}: invalid settings", config_path.display()))?;
+    let config: TrainConfig = serde_json::from_str(&text).map_err(|source| TrainError::Json {
+        path: config_path.clone(),
+        what: "settings",
+        source,
+    })?;
     let losses_path = dir.join(LOSSES_FILE);
     let text = datasets::atomic::read_text(&losses_path)?;
     let (iterations, train_epochs, valid_epochs) =
-        parse_losses(&text).with_context(|| losses_path.display().to_string())?;
+        parse_losses(&text).map_err(|what| TrainError::LossLog { path: losses_path.clone(), what })?;
     if train_epochs.is_empty() {
-        bail!("{}: no completed epoch yet", losses_path.display());
+        return Err(TrainError::LossLog { path: losses_path, what: "no completed epoch yet".into() });
     }
     let metrics_path = dir.join(METRICS_FILE);
     let metrics = if metrics_path.is_file() {
         let text = datasets::atomic::read_text(&metrics_path)?;
-        Some(serde_json::from_str(&text).with_context(|| format!("{}: invalid metrics", metrics_path.display()))?)
+        Some(serde_json::from_str(&text).map_err(|source| TrainError::Json {
+            path: metrics_path.clone(),
+            what: "metrics",
+            source,
+        })?)
     } else {
         None
     };
@@ -108,11 +118,12 @@ pub fn read_run(dir: &Path) -> Result<RunRecord> {
 type Curves = (Vec<LossPoint>, Vec<LossPoint>, Vec<LossPoint>);
 
 /// Splits `losses.csv` into per-iteration, per-epoch training and
-/// validation points, by the header's column names.
-pub fn parse_losses(text: &str) -> Result<Curves> {
+/// validation points, by the header's column names; the error says which
+/// line is wrong.
+pub fn parse_losses(text: &str) -> Result<Curves, String> {
     let mut lines = text.lines();
-    let header: Vec<&str> = lines.next().context("empty loss log")?.split(',').collect();
-    let col = |name: &str| header.iter().position(|h| *h == name).with_context(|| format!("no column {name}"));
+    let header: Vec<&str> = lines.next().ok_or("empty loss log")?.split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).ok_or_else(|| format!("no column {name}"));
     let (kind, epoch, iteration, loss, elapsed) =
         (col("kind")?, col("epoch")?, col("iteration")?, col("loss")?, col("elapsed_s")?);
     let mut out: Curves = Default::default();
@@ -120,19 +131,19 @@ pub fn parse_losses(text: &str) -> Result<Curves> {
         let f: Vec<&str> = line.split(',').collect();
         let bad = || format!("line {}: cannot read {line:?}", n + 2);
         if f.len() != header.len() {
-            bail!(bad());
+            return Err(bad());
         }
         let point = LossPoint {
-            epoch: f[epoch].parse().with_context(bad)?,
-            iteration: f[iteration].parse().with_context(bad)?,
-            loss: f[loss].parse().with_context(bad)?,
-            elapsed_s: f[elapsed].parse().with_context(bad)?,
+            epoch: f[epoch].parse().map_err(|_| bad())?,
+            iteration: f[iteration].parse().map_err(|_| bad())?,
+            loss: f[loss].parse().map_err(|_| bad())?,
+            elapsed_s: f[elapsed].parse().map_err(|_| bad())?,
         };
         match f[kind] {
             "train" => out.0.push(point),
             "train_epoch" => out.1.push(point),
             "valid_epoch" => out.2.push(point),
-            other => bail!("line {}: unknown row kind {other:?}", n + 2),
+            other => return Err(format!("line {}: unknown row kind {other:?}", n + 2)),
         }
     }
     Ok(out)

@@ -3,6 +3,7 @@
 
 pub mod compare;
 pub mod config;
+pub mod error;
 pub mod feature_cache;
 pub mod fused_adamw;
 pub mod losses;
@@ -12,4 +13,5 @@ pub mod targets;
 pub mod trainer;
 
 pub use config::{OptimizerKind, TrainConfig};
+pub use error::TrainError;
 pub use trainer::{TrainSummary, train};

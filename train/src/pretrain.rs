@@ -9,7 +9,6 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use anyhow::{Context, Result};
 use datasets::corpus::{CorpusConfig, generate_corpus};
 use datasets::generate::DatagenConfig;
 use infer::config::{Backbone, DetectorConfig};
@@ -17,6 +16,7 @@ use infer::pretrained::save_trunk;
 use serde::{Deserialize, Serialize};
 
 use crate::TrainConfig;
+use crate::error::{Result, TrainError};
 
 pub const TRUNK_FILE: &str = "trunk.safetensors";
 pub const META_FILE: &str = "meta.json";
@@ -72,7 +72,7 @@ pub struct TrunkMeta {
 /// Generates (or reuses) the corpus, trains (or continues training) on it
 /// and writes the trunk. Returns the trunk's path and its metadata.
 pub fn pretrain(out: &Path, config: &PretrainConfig, show_progress: bool) -> Result<(PathBuf, TrunkMeta)> {
-    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    std::fs::create_dir_all(out).map_err(|source| TrainError::Create { path: out.to_path_buf(), source })?;
     let corpus_dir = out.join("corpus");
     let started = Instant::now();
     let corpus = generate_corpus(&corpus_dir, &config.corpus, &DatagenConfig::default())?;
@@ -104,8 +104,13 @@ pub fn pretrain(out: &Path, config: &PretrainConfig, show_progress: bool) -> Res
         Some(c)
     };
     let summary = crate::train(train_config, &run, show_progress)?;
-    let text = datasets::atomic::read_text(&run.join(crate::trainer::CONFIG_FILE))?;
-    let used: TrainConfig = serde_json::from_str(&text).context("reading the run's settings")?;
+    let settings = run.join(crate::trainer::CONFIG_FILE);
+    let text = datasets::atomic::read_text(&settings)?;
+    let used: TrainConfig = serde_json::from_str(&text).map_err(|source| TrainError::Json {
+        path: settings.clone(),
+        what: "settings",
+        source,
+    })?;
     let (det, network, checkpoint_meta) =
         infer::checkpoint::load(&run.join(crate::trainer::CHECKPOINT_DIR), &burn::prelude::Device::flex())?;
     infer::checkpoint::save(&out.join(DETECTOR_DIR), &det, &network, &checkpoint_meta)?;
@@ -123,7 +128,7 @@ pub fn pretrain(out: &Path, config: &PretrainConfig, show_progress: bool) -> Res
     };
     let header = HashMap::from([
         ("format".to_string(), "torchvision-named trunk".to_string()),
-        ("meta".to_string(), serde_json::to_string(&meta)?),
+        ("meta".to_string(), serde_json::to_string(&meta).expect("a struct of numbers and strings serialises")),
     ]);
     let trunk = out.join(TRUNK_FILE);
     save_trunk(&network, det.backbone, &trunk, header)?;

@@ -16,7 +16,6 @@ use std::fmt::Write as _;
 use std::path::Path;
 use std::time::Instant;
 
-use anyhow::{Context, Result, bail};
 use burn::grad_clipping::GradientClippingConfig;
 use burn::optim::decay::WeightDecayConfig;
 use burn::optim::momentum::MomentumConfig;
@@ -31,6 +30,7 @@ use rand::seq::SliceRandom;
 use serde::{Deserialize, Serialize};
 
 use crate::config::{OptimizerKind, TrainConfig};
+use crate::error::{Result, TrainError};
 use crate::feature_cache::{FeatureCache, MAX_CACHE_BYTES};
 use crate::losses::{FASTER_RCNN_PARTS, GRID_PARTS};
 use crate::step::batch_losses;
@@ -130,7 +130,7 @@ pub fn train_until(
     let resume_dir = run.join(RESUME_DIR);
     let (config, state) = match config {
         Some(c) => {
-            c.validate().map_err(|m| anyhow::anyhow!("invalid settings: {m}"))?;
+            c.validate().map_err(TrainError::Settings)?;
             (c, None)
         }
         None => {
@@ -139,16 +139,20 @@ pub fn train_until(
             datasets::atomic::remove_leftovers(run)?;
             datasets::atomic::recover_dir(&resume_dir)?;
             let path = run.join(CONFIG_FILE);
-            let text = datasets::atomic::read_text(&path).context("nothing to resume")?;
-            let c: TrainConfig =
-                serde_json::from_str(&text).with_context(|| format!("{}: invalid settings", path.display()))?;
+            let text = datasets::atomic::read_text(&path).map_err(TrainError::NothingToResume)?;
+            let c: TrainConfig = serde_json::from_str(&text).map_err(|source| TrainError::Json {
+                path: path.clone(),
+                what: "settings",
+                source,
+            })?;
             let state_path = resume_dir.join(STATE_FILE);
             let state = if state_path.is_file() {
                 let text = datasets::atomic::read_text(&state_path)?;
-                Some(
-                    serde_json::from_str::<ResumeState>(&text)
-                        .with_context(|| format!("{}: invalid state", state_path.display()))?,
-                )
+                Some(serde_json::from_str::<ResumeState>(&text).map_err(|source| TrainError::Json {
+                    path: state_path.clone(),
+                    what: "state",
+                    source,
+                })?)
             } else {
                 None
             };
@@ -162,13 +166,16 @@ pub fn train_until(
     let test_json = config.data.join("test.json");
     for p in [&train_json, &test_json] {
         if !p.is_file() {
-            bail!("{}: missing (--data must be a datagen detection folder with train.json and test.json)", p.display());
+            return Err(TrainError::Folder {
+                path: p.clone(),
+                what: "missing (--data must be a datagen detection folder with train.json and test.json)".into(),
+            });
         }
     }
     let all = load_coco_set(&train_json, &det.preprocess)?;
     let test = load_coco_set(&test_json, &det.preprocess)?;
     if all.is_empty() {
-        bail!("{}: no training images", train_json.display());
+        return Err(TrainError::Folder { path: train_json, what: "no training images".into() });
     }
     let (train_set, valid_set) = split(&all, config.val_fraction, config.seed);
 
@@ -179,8 +186,10 @@ pub fn train_until(
     let (mut epochs_done, mut elapsed, mut csv) = (0, 0.0, csv_header(det.backbone));
     let mut pretrained_report = None;
     if let Some(s) = state {
-        network = checkpoint::load_weights(&resume_dir, det, &device).context("loading the resume weights")?;
-        optim = optim.load(resume_dir.join(format!("{OPTIMIZER_STEM}.bpk"))).context("loading the optimizer state")?;
+        network = checkpoint::load_weights(&resume_dir, det, &device).map_err(TrainError::ResumeWeights)?;
+        optim = optim
+            .load(resume_dir.join(format!("{OPTIMIZER_STEM}.bpk")))
+            .map_err(|source| TrainError::Optimizer { what: "loading", source })?;
         (epochs_done, elapsed, csv) = (s.epochs_done, s.elapsed_s, s.csv);
         eprintln!("resuming {} after epoch {epochs_done} of {}", run.display(), config.epochs);
     } else if let Some(path) = config.pretrained.as_deref().filter(|p| p.is_dir()) {
@@ -206,7 +215,7 @@ pub fn train_until(
         pretrained_report = Some(report);
     }
     // Written once the settings proved usable (data read, weights loaded).
-    std::fs::create_dir_all(run).with_context(|| format!("{}: cannot create the run folder", run.display()))?;
+    std::fs::create_dir_all(run).map_err(|source| TrainError::Create { path: run.to_path_buf(), source })?;
     datasets::atomic::write_json(&run.join(CONFIG_FILE), &config)?;
     if let Some(report) = &pretrained_report {
         datasets::atomic::write_json(&run.join(PRETRAINED_FILE), report)?;
@@ -255,7 +264,7 @@ pub fn train_until(
                 .map(|t| infer::host(t.clone())[0] as f64)
                 .collect();
             if !values[0].is_finite() {
-                bail!("the loss became {} at epoch {} iteration {iteration}: lower --lr", values[0], epoch + 1);
+                return Err(TrainError::Diverged { loss: values[0], epoch: epoch + 1, iteration });
             }
             let lr = config.lr_at(iteration, total);
             network = apply(network, &mut optim, lr, losses.total.backward());
@@ -405,7 +414,7 @@ fn frozen_feature_caches(
 fn save_resume(dir: &Path, network: &Network, optim: &ModuleOptimizer, state: &ResumeState) -> Result<()> {
     datasets::atomic::write_dir(dir, |tmp| -> Result<()> {
         checkpoint::save_weights(network, &tmp.join(checkpoint::WEIGHTS_STEM))?;
-        optim.save(tmp.join(OPTIMIZER_STEM)).context("writing the optimizer state")?;
+        optim.save(tmp.join(OPTIMIZER_STEM)).map_err(|source| TrainError::Optimizer { what: "writing", source })?;
         datasets::atomic::write_json(&tmp.join(STATE_FILE), state)?;
         Ok(())
     })

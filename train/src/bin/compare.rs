@@ -26,7 +26,7 @@ fn main() -> std::process::ExitCode {
 
 fn run_main() -> Result<()> {
     let args = Args::parse();
-    let runs = args.runs.iter().map(|d| read_run(d)).collect::<Result<Vec<_>>>()?;
+    let runs = args.runs.iter().map(|d| read_run(d)).collect::<Result<Vec<_>, _>>()?;
     if runs.iter().any(|r| r.metrics.is_none()) {
         eprintln!("note: runs without metrics.json (unfinished) show no AP");
     }
