@@ -12,8 +12,8 @@ use localize::corner_source::CornerSource;
 use localize::run::{RunMetrics, TrajectoryMetrics, metrics, run_sequence, write_outputs};
 use localize::sequence::RecordedSequence;
 use serde::{Deserialize, Serialize};
-use train::TrainConfig;
 use train::compare::{RunRecord, csv_table, markdown_table, read_run, write_loss_plots};
+use train::{Start, TrainConfig};
 
 use crate::error::{ReproduceError, Result};
 use crate::plan::{FineTune, Plan, TrunkSource, pretrained_families, starts_from_whole_network};
@@ -224,9 +224,23 @@ fn start_path(dir: &Path, backbone: Backbone) -> PathBuf {
     }
 }
 
-/// The file whose content identifies a start: the trunk, or the checkpoint's weights.
-fn start_fingerprint(path: &Path) -> Result<String> {
-    if path.is_dir() { file_fingerprint(&path.join(infer::checkpoint::WEIGHTS_FILE)) } else { file_fingerprint(path) }
+/// How `family` starts from the pretraining output at `path`.
+fn start_of(family: Backbone, path: &Path) -> Start {
+    if starts_from_whole_network(family) {
+        Start::Detector(path.to_path_buf())
+    } else {
+        Start::Trunk(path.to_path_buf())
+    }
+}
+
+/// The file whose content identifies `family`'s start at `path`: the
+/// trunk, or the checkpoint's weights.
+fn start_fingerprint(family: Backbone, path: &Path) -> Result<String> {
+    if starts_from_whole_network(family) {
+        file_fingerprint(&path.join(infer::checkpoint::WEIGHTS_FILE))
+    } else {
+        file_fingerprint(path)
+    }
 }
 
 /// The pretrained start of `family`: shipped, or pretrained here on a
@@ -258,7 +272,7 @@ fn trunk_stage(
                 .map(|m| m.corpus_test.ap50);
             let trunk = TrunkOutputs {
                 family,
-                fingerprint: start_fingerprint(&path)?,
+                fingerprint: start_fingerprint(family, &path)?,
                 path,
                 origin: "shipped".into(),
                 corpus_ap50,
@@ -275,7 +289,7 @@ fn trunk_stage(
                         path: out.join("pretrain").join(Backbone::Vgg16.name()),
                         what: "faster-rcnn's pretraining starts from the vgg16 trunk, which was not made".into(),
                     })?;
-                config.pretrained = Some(vgg16.path.clone());
+                config.start = Start::Trunk(vgg16.path.clone());
                 from = Some(vgg16.fingerprint.clone());
             }
             let dir = out.join("pretrain").join(family.name());
@@ -286,7 +300,7 @@ fn trunk_stage(
                 let path = start_path(&dir, family);
                 Ok(TrunkOutputs {
                     family,
-                    fingerprint: start_fingerprint(&path)?,
+                    fingerprint: start_fingerprint(family, &path)?,
                     path,
                     origin: "pretrained here".into(),
                     corpus_ap50: Some(meta.corpus_test.ap50),
@@ -309,7 +323,7 @@ fn fine_tune(
     let mut config = TrainConfig::new(ft.backbone, plan.width, data_dir.join("detection"));
     config.epochs = ft.epochs;
     config.backend = plan.backend;
-    config.start_from(trunk.path.clone());
+    config.start_from(start_of(ft.backbone, &trunk.path));
     let inputs = serde_json::json!({ "train": &config, "trunk": &trunk.fingerprint, "data": data_key });
     run_stage(&run, &inputs, || {
         // An interrupted run with the same settings continues; any other

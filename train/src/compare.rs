@@ -56,7 +56,7 @@ impl RunRecord {
 
     /// `pretrained file` (or `scratch`), with the frozen layers.
     pub fn start(&self) -> String {
-        let from = match &self.config.pretrained {
+        let from = match self.config.start.path() {
             Some(p) => {
                 let name = p.file_name().map(|f| f.to_string_lossy().into_owned());
                 match name {

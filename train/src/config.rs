@@ -1,7 +1,7 @@
 //! The training settings, written to the run folder as `train_config.json`
 //! so that a run can be resumed and reproduced.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use infer::backend::CpuBackend;
 use infer::config::{Backbone, DetectorConfig};
@@ -15,6 +15,35 @@ pub enum OptimizerKind {
     Adam,
     /// SGD with momentum 0.9 (no dampening, as PyTorch).
     Sgd,
+}
+
+/// Where a run's weights start.
+#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Start {
+    /// Every layer from its random initialisation.
+    #[default]
+    Scratch,
+    /// The trunk from a weights file (torchvision-named `.pth` or
+    /// `.safetensors`, HED, or a `pretrain` trunk); the heads from scratch.
+    Trunk(PathBuf),
+    /// Every layer from a checkpoint folder of the same network
+    /// (fine-tuning a detector).
+    Detector(PathBuf),
+}
+
+impl Start {
+    /// What `--pretrained PATH` names: a folder is a checkpoint, a file a trunk.
+    pub fn from_path(path: PathBuf) -> Self {
+        if path.is_dir() { Self::Detector(path) } else { Self::Trunk(path) }
+    }
+
+    pub fn path(&self) -> Option<&Path> {
+        match self {
+            Self::Scratch => None,
+            Self::Trunk(p) | Self::Detector(p) => Some(p),
+        }
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -36,12 +65,9 @@ pub struct TrainConfig {
     /// Random left-right flips of the training images.
     pub augment: bool,
     pub backend: CpuBackend,
-    /// Starting weights: a file holds a trunk (torchvision-named
-    /// `.pth`/`.safetensors` or a `pretrain` trunk); a checkpoint folder of
-    /// the same network starts every layer (fine-tuning a detector); `None`
-    /// trains from scratch.
+    /// Where the weights start.
     #[serde(default)]
-    pub pretrained: Option<PathBuf>,
+    pub start: Start,
     /// How the pretrained network expected its input (see `infer::pretrained`).
     #[serde(default)]
     pub pretrained_input: InputConvention,
@@ -89,7 +115,7 @@ impl TrainConfig {
             val_fraction: 0.1,
             augment: true,
             backend: CpuBackend::Flex,
-            pretrained: None,
+            start: Start::Scratch,
             pretrained_input: InputConvention::Auto,
             pretrained_prune: false,
             freeze: 0,
@@ -97,13 +123,13 @@ impl TrainConfig {
         }
     }
 
-    /// Starts from `path`: a trunk file, or a checkpoint folder, which
-    /// starts every layer and lowers the peak LR to [`WHOLE_NETWORK_LR`].
-    pub fn start_from(&mut self, path: PathBuf) {
-        if path.is_dir() {
+    /// Starts from `start`; a whole detector lowers the peak LR to
+    /// [`WHOLE_NETWORK_LR`].
+    pub fn start_from(&mut self, start: Start) {
+        if matches!(start, Start::Detector(_)) {
             self.lr = WHOLE_NETWORK_LR;
         }
-        self.pretrained = Some(path);
+        self.start = start;
     }
 
     pub fn validate(&self) -> Result<(), String> {
@@ -124,7 +150,7 @@ impl TrainConfig {
                 self.freeze, self.detector.backbone
             ));
         }
-        if self.pretrained_prune && self.pretrained.as_deref().is_some_and(|p| p.is_dir()) {
+        if self.pretrained_prune && matches!(self.start, Start::Detector(_)) {
             return Err("pruning applies to trunk files, not to a checkpoint folder".into());
         }
         if !(0.0..0.9).contains(&self.val_fraction) {

@@ -12,6 +12,6 @@ pub mod step;
 pub mod targets;
 pub mod trainer;
 
-pub use config::{OptimizerKind, TrainConfig};
+pub use config::{OptimizerKind, Start, TrainConfig};
 pub use error::TrainError;
 pub use trainer::{TrainSummary, train};

@@ -15,8 +15,8 @@ use infer::config::{Backbone, DetectorConfig};
 use infer::pretrained::save_trunk;
 use serde::{Deserialize, Serialize};
 
-use crate::TrainConfig;
 use crate::error::{Result, TrainError};
+use crate::{Start, TrainConfig};
 
 pub const TRUNK_FILE: &str = "trunk.safetensors";
 pub const META_FILE: &str = "meta.json";
@@ -32,10 +32,10 @@ pub struct PretrainConfig {
     pub epochs: usize,
     pub lr: Option<f64>,
     pub seed: u64,
-    /// Where the pretraining itself starts from (a trunk file or a
-    /// checkpoint folder, as `train --pretrained`); `None`: from scratch.
+    /// Where the pretraining itself starts (as `train --pretrained`; the
+    /// peak LR stays the corpus's, also from a whole detector).
     #[serde(default)]
-    pub pretrained: Option<PathBuf>,
+    pub start: Start,
 }
 
 impl PretrainConfig {
@@ -46,7 +46,7 @@ impl PretrainConfig {
             epochs: if backbone == Backbone::FasterRcnn { 4 } else { 8 },
             lr: None,
             seed: 42,
-            pretrained: None,
+            start: Start::Scratch,
         }
     }
 }
@@ -98,7 +98,7 @@ pub fn pretrain(out: &Path, config: &PretrainConfig, show_progress: bool) -> Res
             c.lr = lr;
         }
         c.seed = config.seed;
-        c.pretrained = config.pretrained.clone();
+        c.start = config.start.clone();
         // The corpus's own test split measures the pretraining; no validation split needed.
         c.val_fraction = 0.0;
         Some(c)

@@ -29,7 +29,7 @@ use rand::rngs::ChaCha8Rng;
 use rand::seq::SliceRandom;
 use serde::{Deserialize, Serialize};
 
-use crate::config::{OptimizerKind, TrainConfig};
+use crate::config::{OptimizerKind, Start, TrainConfig};
 use crate::error::{Result, TrainError};
 use crate::feature_cache::{FeatureCache, MAX_CACHE_BYTES};
 use crate::losses::{FASTER_RCNN_PARTS, GRID_PARTS};
@@ -192,13 +192,12 @@ pub fn train_until(
             .map_err(|source| TrainError::Optimizer { what: "loading", source })?;
         (epochs_done, elapsed, csv) = (s.epochs_done, s.elapsed_s, s.csv);
         eprintln!("resuming {} after epoch {epochs_done} of {}", run.display(), config.epochs);
-    } else if let Some(path) = config.pretrained.as_deref().filter(|p| p.is_dir()) {
-        // A checkpoint folder: every layer starts from it (fine-tuning a detector).
+    } else if let Start::Detector(path) = &config.start {
         network = checkpoint::load_for_fine_tuning(path, det, &device)?;
         if show_progress {
             eprintln!("{}: whole detector loaded (trunk, heads)", path.display());
         }
-    } else if let Some(path) = &config.pretrained {
+    } else if let Start::Trunk(path) = &config.start {
         let report = load_trunk(&mut network, det, path, config.pretrained_input, config.pretrained_prune)?;
         if show_progress {
             eprintln!(
@@ -347,7 +346,7 @@ fn meta_for(config: &TrainConfig, network: &Network, epochs: usize, seconds: f64
         dataset: config.data.display().to_string(),
         epochs,
         metrics: None,
-        pretrained: config.pretrained.as_ref().map(|p| p.display().to_string()),
+        pretrained: config.start.path().map(|p| p.display().to_string()),
         train_seconds: seconds,
         parameters: network.num_params(),
     }

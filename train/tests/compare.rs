@@ -5,8 +5,8 @@ use std::path::Path;
 
 use infer::config::Backbone;
 use infer::metrics::EvalMetrics;
-use train::TrainConfig;
 use train::compare::{csv_table, markdown_table, read_run, reduction_percent, write_loss_plots};
+use train::{Start, TrainConfig};
 
 const HEADER: &str = "kind,epoch,iteration,loss,a,b,c,d,lr,elapsed_s\n";
 
@@ -72,9 +72,9 @@ fn runs_are_tabulated_ranked_and_drawn() {
     // The start says where the trunk came from: a `pretrain` trunk by its folder.
     assert_eq!(vgg[3], "scratch");
     let mut pretrained = runs[1].clone();
-    pretrained.config.pretrained = Some("checkpoints/pretrained/vgg16/trunk.safetensors".into());
+    pretrained.config.start = Start::Trunk("checkpoints/pretrained/vgg16/trunk.safetensors".into());
     assert_eq!(pretrained.start(), "pretrained vgg16");
-    pretrained.config.pretrained = Some("w/hed_vgg16_bsds500.safetensors".into());
+    pretrained.config.start = Start::Trunk("w/hed_vgg16_bsds500.safetensors".into());
     pretrained.config.pretrained_prune = true;
     assert_eq!(pretrained.start(), "hed_vgg16_bsds500.safetensors, pruned");
     assert_eq!(csv_table(&runs).lines().count(), 4);

@@ -14,6 +14,7 @@ use infer::checkpoint;
 use infer::config::Backbone;
 use infer::network::Network;
 use infer::pretrained::{read_tensors, save_trunk};
+use train::Start;
 
 fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
     static TURN: std::sync::Mutex<()> = std::sync::Mutex::new(());
@@ -45,7 +46,7 @@ fn frozen_convolutions_stay_bit_identical_and_the_rest_trains() {
     let start = read_tensors(&file).unwrap();
     let run = dir.path().join("run");
     let mut config = tiny_config(Backbone::Vgg16, 2);
-    config.pretrained = Some(file.clone());
+    config.start = Start::Trunk(file.clone());
     config.freeze = 4;
     train::train(Some(config), &run, false).unwrap();
     let trained = conv_weights(&run);
@@ -75,7 +76,7 @@ fn cached_frozen_features_give_the_losses_of_running_the_layers() {
     for cache in [true, false] {
         let run = dir.path().join(format!("run-{cache}"));
         let mut config = tiny_config(Backbone::FasterRcnn, 2);
-        config.pretrained = Some(file.clone());
+        config.start = Start::Trunk(file.clone());
         config.freeze = 7;
         config.cache_frozen = cache;
         // Flips on: the cache must hold both orientations.
@@ -96,7 +97,7 @@ fn a_trunk_of_another_network_is_refused_before_training() {
     let dir = tempfile::tempdir().unwrap();
     let file = trunk_file(Backbone::Alexnet, dir.path(), 3);
     let mut config = tiny_config(Backbone::Vgg16, 1);
-    config.pretrained = Some(file);
+    config.start = Start::Trunk(file);
     let err = train::train(Some(config), &dir.path().join("run"), false).unwrap_err();
     let text = format!("{err:#}");
     assert!(text.contains("alexnet-trunk.safetensors") && text.contains("missing: features.12.weight"), "{text}");
@@ -141,7 +142,7 @@ fn pretrain_writes_a_trunk_that_train_accepts() {
     assert!(second.contains("(reused)"), "{second}");
 
     let mut config = tiny_config(Backbone::Alexnet, 1);
-    config.pretrained = Some(out.join("trunk.safetensors"));
+    config.start = Start::Trunk(out.join("trunk.safetensors"));
     let detector = config.detector.clone();
     let mut network = Network::new(&detector, &Device::flex());
     let report = infer::pretrained::load_trunk(
@@ -186,7 +187,7 @@ fn a_checkpoint_folder_starts_every_layer_and_one_of_another_width_is_refused() 
     // the run exactly as the folder had them.
     let second = dir.path().join("second");
     let mut fine_tune = tiny_config(Backbone::FasterRcnn, 1);
-    fine_tune.pretrained = Some(saved_dir.clone());
+    fine_tune.start = Start::Detector(saved_dir.clone());
     fine_tune.freeze = Backbone::FasterRcnn.trunk_convs();
     train::train(Some(fine_tune), &second, false).unwrap();
     assert_eq!(conv_weights(&second), conv_weights(&first));
@@ -194,7 +195,7 @@ fn a_checkpoint_folder_starts_every_layer_and_one_of_another_width_is_refused() 
     // Another width has other layers: refused, naming the folder's config.
     let mut wider = tiny_config(Backbone::FasterRcnn, 1);
     wider.detector = infer::config::DetectorConfig::new(Backbone::FasterRcnn, 0.25);
-    wider.pretrained = Some(saved_dir);
+    wider.start = Start::Detector(saved_dir);
     let err = train::train(Some(wider), &dir.path().join("third"), false).unwrap_err();
     let text = format!("{err:#}");
     assert!(text.contains("config.json") && text.contains("the layers differ"), "{text}");

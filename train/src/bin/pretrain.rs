@@ -82,7 +82,9 @@ fn run_main() -> Result<()> {
     {
         bail!("--pretrained {}: no such file or checkpoint folder", p.display());
     }
-    config.pretrained = args.pretrained.clone();
+    if let Some(p) = &args.pretrained {
+        config.start = train::Start::from_path(p.clone());
+    }
     let (trunk, meta) = pretrain(&args.out, &config, true)?;
     println!(
         "trunk in {}; corpus test AP@0.5 {:.3}; {:.0} s of training",

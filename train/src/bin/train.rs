@@ -117,7 +117,7 @@ fn run_main() -> Result<()> {
                 bail!("--pretrained {}: no such file or checkpoint folder", p.display());
             }
             if let Some(p) = &args.pretrained {
-                c.start_from(p.clone());
+                c.start_from(train::Start::from_path(p.clone()));
             }
             // An explicit --lr wins over the start's default.
             if let Some(lr) = args.lr {
