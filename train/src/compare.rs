@@ -13,7 +13,7 @@ use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 
 use crate::config::TrainConfig;
-use crate::error::{Result, TrainError};
+use crate::error::{Result, TrainError, read_json};
 use crate::trainer::{CHECKPOINT_DIR, CONFIG_FILE, LOSSES_FILE, METRICS_FILE};
 
 /// One point of a loss curve.
@@ -86,12 +86,7 @@ pub fn read_run(dir: &Path) -> Result<RunRecord> {
             what: format!("not a training run (no {CONFIG_FILE})"),
         });
     }
-    let text = datasets::atomic::read_text(&config_path)?;
-    let config: TrainConfig = serde_json::from_str(&text).map_err(|source| TrainError::Json {
-        path: config_path.clone(),
-        what: "settings",
-        source,
-    })?;
+    let config: TrainConfig = read_json(&config_path, "settings")?;
     let losses_path = dir.join(LOSSES_FILE);
     let text = datasets::atomic::read_text(&losses_path)?;
     let (iterations, train_epochs, valid_epochs) =
@@ -100,16 +95,7 @@ pub fn read_run(dir: &Path) -> Result<RunRecord> {
         return Err(TrainError::LossLog { path: losses_path, what: "no completed epoch yet".into() });
     }
     let metrics_path = dir.join(METRICS_FILE);
-    let metrics = if metrics_path.is_file() {
-        let text = datasets::atomic::read_text(&metrics_path)?;
-        Some(serde_json::from_str(&text).map_err(|source| TrainError::Json {
-            path: metrics_path.clone(),
-            what: "metrics",
-            source,
-        })?)
-    } else {
-        None
-    };
+    let metrics = if metrics_path.is_file() { Some(read_json(&metrics_path, "metrics")?) } else { None };
     let meta = checkpoint::read_meta(&dir.join(CHECKPOINT_DIR)).ok();
     let name = dir.file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_else(|| dir.display().to_string());
     Ok(RunRecord { name, dir: dir.to_path_buf(), config, iterations, train_epochs, valid_epochs, metrics, meta })

@@ -1,7 +1,7 @@
 //! What can stop training, pretraining or the reading of a run: each error
 //! names the file or setting it concerns and keeps its cause as the source.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use datasets::DataError;
 use infer::checkpoint::CheckpointError;
@@ -54,3 +54,13 @@ pub enum TrainError {
 }
 
 pub type Result<T, E = TrainError> = std::result::Result<T, E>;
+
+/// Parses `text`, read from the JSON file at `path` that holds the run's `what`.
+pub(crate) fn parse_json<T: serde::de::DeserializeOwned>(path: &Path, what: &'static str, text: &str) -> Result<T> {
+    serde_json::from_str(text).map_err(|source| TrainError::Json { path: path.to_path_buf(), what, source })
+}
+
+/// Reads and parses the JSON file at `path` that holds the run's `what`.
+pub(crate) fn read_json<T: serde::de::DeserializeOwned>(path: &Path, what: &'static str) -> Result<T> {
+    parse_json(path, what, &datasets::atomic::read_text(path)?)
+}

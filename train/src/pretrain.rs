@@ -15,7 +15,7 @@ use infer::config::{Backbone, DetectorConfig};
 use infer::pretrained::save_trunk;
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Result, TrainError};
+use crate::error::{Result, TrainError, read_json};
 use crate::{Start, TrainConfig};
 
 pub const TRUNK_FILE: &str = "trunk.safetensors";
@@ -104,13 +104,7 @@ pub fn pretrain(out: &Path, config: &PretrainConfig, show_progress: bool) -> Res
         Some(c)
     };
     let summary = crate::train(train_config, &run, show_progress)?;
-    let settings = run.join(crate::trainer::CONFIG_FILE);
-    let text = datasets::atomic::read_text(&settings)?;
-    let used: TrainConfig = serde_json::from_str(&text).map_err(|source| TrainError::Json {
-        path: settings.clone(),
-        what: "settings",
-        source,
-    })?;
+    let used: TrainConfig = read_json(&run.join(crate::trainer::CONFIG_FILE), "settings")?;
     let (det, network, checkpoint_meta) =
         infer::checkpoint::load(&run.join(crate::trainer::CHECKPOINT_DIR), &burn::prelude::Device::flex())?;
     infer::checkpoint::save(&out.join(DETECTOR_DIR), &det, &network, &checkpoint_meta)?;

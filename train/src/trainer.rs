@@ -30,7 +30,7 @@ use rand::seq::SliceRandom;
 use serde::{Deserialize, Serialize};
 
 use crate::config::{OptimizerKind, Start, TrainConfig};
-use crate::error::{Result, TrainError};
+use crate::error::{Result, TrainError, parse_json, read_json};
 use crate::feature_cache::{FeatureCache, MAX_CACHE_BYTES};
 use crate::losses::{FASTER_RCNN_PARTS, GRID_PARTS};
 use crate::step::batch_losses;
@@ -140,22 +140,9 @@ pub fn train_until(
             datasets::atomic::recover_dir(&resume_dir)?;
             let path = run.join(CONFIG_FILE);
             let text = datasets::atomic::read_text(&path).map_err(TrainError::NothingToResume)?;
-            let c: TrainConfig = serde_json::from_str(&text).map_err(|source| TrainError::Json {
-                path: path.clone(),
-                what: "settings",
-                source,
-            })?;
+            let c: TrainConfig = parse_json(&path, "settings", &text)?;
             let state_path = resume_dir.join(STATE_FILE);
-            let state = if state_path.is_file() {
-                let text = datasets::atomic::read_text(&state_path)?;
-                Some(serde_json::from_str::<ResumeState>(&text).map_err(|source| TrainError::Json {
-                    path: state_path.clone(),
-                    what: "state",
-                    source,
-                })?)
-            } else {
-                None
-            };
+            let state = if state_path.is_file() { Some(read_json::<ResumeState>(&state_path, "state")?) } else { None };
             (c, state)
         }
     };
