@@ -31,8 +31,9 @@ pub struct DataOutputs {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct TrunkOutputs {
     pub family: Backbone,
-    /// A trunk file, or a checkpoint folder when the whole network is the start.
-    pub path: PathBuf,
+    /// Where the fine-tuning starts: the trunk file, or the checkpoint when
+    /// the whole network is the start.
+    pub start: Start,
     pub fingerprint: String,
     /// `shipped` or `pretrained here`.
     pub origin: String,
@@ -213,33 +214,24 @@ fn data_stage(out: &Path, plan: &Plan) -> Result<(PathBuf, serde_json::Value, Da
     Ok((dir, serde_json::to_value(&plan.datagen)?, data, was))
 }
 
-/// Where a backbone's fine-tuning starts, inside a pretraining folder
-/// (or the shipped `pretrained/<backbone>/`): the whole network's
-/// checkpoint for faster-rcnn, the trunk otherwise.
-fn start_path(dir: &Path, backbone: Backbone) -> PathBuf {
-    if starts_from_whole_network(backbone) {
-        dir.join(train::pretrain::DETECTOR_DIR)
+/// Where `family`'s fine-tuning starts, in a pretraining folder (or the
+/// shipped `pretrained/<family>/`): the whole network's checkpoint for
+/// faster-rcnn, the trunk otherwise.
+fn pretrained_start(dir: &Path, family: Backbone) -> Start {
+    if starts_from_whole_network(family) {
+        Start::Detector(dir.join(train::pretrain::DETECTOR_DIR))
     } else {
-        dir.join(train::pretrain::TRUNK_FILE)
+        Start::Trunk(dir.join(train::pretrain::TRUNK_FILE))
     }
 }
 
-/// How `family` starts from the pretraining output at `path`.
-fn start_of(family: Backbone, path: &Path) -> Start {
-    if starts_from_whole_network(family) {
-        Start::Detector(path.to_path_buf())
-    } else {
-        Start::Trunk(path.to_path_buf())
-    }
-}
-
-/// The file whose content identifies `family`'s start at `path`: the
-/// trunk, or the checkpoint's weights.
-fn start_fingerprint(family: Backbone, path: &Path) -> Result<String> {
-    if starts_from_whole_network(family) {
-        file_fingerprint(&path.join(infer::checkpoint::WEIGHTS_FILE))
-    } else {
-        file_fingerprint(path)
+/// What identifies a start's content: the trunk file's, or the checkpoint
+/// weights'.
+fn start_fingerprint(start: &Start) -> Result<String> {
+    match start {
+        Start::Scratch => Ok("scratch".into()),
+        Start::Trunk(path) => file_fingerprint(path),
+        Start::Detector(dir) => file_fingerprint(&dir.join(infer::checkpoint::WEIGHTS_FILE)),
     }
 }
 
@@ -256,10 +248,11 @@ fn trunk_stage(
     match &plan.trunks {
         TrunkSource::Shipped(checkpoints) => {
             let dir = checkpoints.join("pretrained").join(family.name());
-            let path = start_path(&dir, family);
+            let start = pretrained_start(&dir, family);
+            let path = start.path().expect("a pretrained start has a path");
             if !path.exists() {
                 return Err(ReproduceError::Missing {
-                    path,
+                    path: path.to_path_buf(),
                     what: format!(
                         "the shipped pretrained {family} is missing; run from the repository's root, or pass \
                          --pretrain to pretrain it on a generated corpus"
@@ -272,8 +265,8 @@ fn trunk_stage(
                 .map(|m| m.corpus_test.ap50);
             let trunk = TrunkOutputs {
                 family,
-                fingerprint: start_fingerprint(family, &path)?,
-                path,
+                fingerprint: start_fingerprint(&start)?,
+                start,
                 origin: "shipped".into(),
                 corpus_ap50,
                 seconds: 0.0,
@@ -289,7 +282,7 @@ fn trunk_stage(
                         path: out.join("pretrain").join(Backbone::Vgg16.name()),
                         what: "faster-rcnn's pretraining starts from the vgg16 trunk, which was not made".into(),
                     })?;
-                config.start = Start::Trunk(vgg16.path.clone());
+                config.start = vgg16.start.clone();
                 from = Some(vgg16.fingerprint.clone());
             }
             let dir = out.join("pretrain").join(family.name());
@@ -297,11 +290,11 @@ fn trunk_stage(
             run_stage(&dir, &inputs, || {
                 let started = Instant::now();
                 let (_, meta) = train::pretrain::pretrain(&dir, &config, show_progress)?;
-                let path = start_path(&dir, family);
+                let start = pretrained_start(&dir, family);
                 Ok(TrunkOutputs {
                     family,
-                    fingerprint: start_fingerprint(family, &path)?,
-                    path,
+                    fingerprint: start_fingerprint(&start)?,
+                    start,
                     origin: "pretrained here".into(),
                     corpus_ap50: Some(meta.corpus_test.ap50),
                     seconds: started.elapsed().as_secs_f64(),
@@ -323,12 +316,12 @@ fn fine_tune(
     let mut config = TrainConfig::new(ft.backbone, plan.width, data_dir.join("detection"));
     config.epochs = ft.epochs;
     config.backend = plan.backend;
-    config.start_from(start_of(ft.backbone, &trunk.path));
+    config.start_from(trunk.start.clone());
     let inputs = serde_json::json!({ "train": &config, "trunk": &trunk.fingerprint, "data": data_key });
     run_stage(&run, &inputs, || {
         // An interrupted run with the same settings continues; any other
         // run in the folder is from other settings and starts over.
-        let previous = datasets::atomic::read_text(&run.join(train::trainer::CONFIG_FILE))
+        let previous = datasets::atomic::read_text(&train::RunFolder::new(&run).config_path())
             .ok()
             .and_then(|t| serde_json::from_str::<TrainConfig>(&t).ok());
         let summary = if previous.as_ref() == Some(&config) {
@@ -363,7 +356,7 @@ fn localize_stage(
     show_progress: bool,
 ) -> Result<(LocalizeOutputs, bool)> {
     let dir = out.join("localize").join(trained.backbone.name());
-    let checkpoint = trained.run.join(train::trainer::CHECKPOINT_DIR);
+    let checkpoint = train::RunFolder::new(&trained.run).checkpoint_dir();
     let weights = file_fingerprint(&checkpoint.join(infer::checkpoint::WEIGHTS_FILE))?;
     let inputs = serde_json::json!({ "detector": weights, "data": data_key, "config": &plan.localize });
     run_stage(&dir, &inputs, || {

@@ -8,7 +8,7 @@ use infer::config::Backbone;
 use train::compare::{markdown_table, reduction_percent};
 
 use crate::experiment::{ErrorRow, Results};
-use crate::plan::{Plan, TrunkSource, starts_from_whole_network};
+use crate::plan::{Plan, TrunkSource};
 
 /// The paper's figures (its Table 1, Table 2 and conclusions).
 pub mod paper {
@@ -136,7 +136,8 @@ pub fn markdown(plan: &Plan, results: &Results, machine: &Machine, invocation_s:
             TrunkSource::Shipped(_) => "shipped, pretrained by `pretrain` on a generated corpus of other worlds",
             TrunkSource::Pretrain { .. } => "pretrained in this run on a generated corpus of other worlds",
         };
-        let what = if starts_from_whole_network(t.family) { "whole network (trunk and heads)" } else { "trunk" };
+        let what =
+            if matches!(t.start, train::Start::Detector(_)) { "whole network (trunk and heads)" } else { "trunk" };
         let _ = writeln!(
             s,
             "- {} {what} ({source}; corpus test AP@0.5 {})",

@@ -20,7 +20,11 @@ fn quick_reproduction_writes_a_sane_report_and_resumes() {
     assert!(results.reused.is_empty(), "{:?}", results.reused);
 
     // faster-rcnn starts from its whole pretrained network, the others from trunks.
-    let starts: Vec<_> = results.trunks.iter().map(|t| (t.family, t.path.is_dir())).collect();
+    let starts: Vec<_> = results
+        .trunks
+        .iter()
+        .map(|t| (t.family, matches!(&t.start, train::Start::Detector(p) if p.is_dir())))
+        .collect();
     assert_eq!(starts, [(Backbone::Vgg16, false), (Backbone::Alexnet, false), (Backbone::FasterRcnn, true)]);
     assert_eq!(results.runs.len(), 3);
     let test_set = out.join("data/detection/test.json");

@@ -14,16 +14,9 @@ use plotters::prelude::*;
 
 use crate::config::TrainConfig;
 use crate::error::{Result, TrainError, read_json};
-use crate::trainer::{CHECKPOINT_DIR, CONFIG_FILE, LOSSES_FILE, METRICS_FILE};
-
-/// One point of a loss curve.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct LossPoint {
-    pub epoch: usize,
-    pub iteration: usize,
-    pub loss: f64,
-    pub elapsed_s: f64,
-}
+pub use crate::loss_log::LossPoint;
+use crate::loss_log::{LossLog, RowKind};
+use crate::run_folder::{CONFIG_FILE, RunFolder};
 
 /// What the comparison needs of one run folder.
 #[derive(Debug, Clone)]
@@ -79,60 +72,35 @@ impl RunRecord {
 
 /// Reads a run folder written by `train`.
 pub fn read_run(dir: &Path) -> Result<RunRecord> {
-    let config_path = dir.join(CONFIG_FILE);
-    if !config_path.is_file() {
+    let folder = RunFolder::new(dir);
+    if !folder.holds_run() {
         return Err(TrainError::Folder {
             path: dir.to_path_buf(),
             what: format!("not a training run (no {CONFIG_FILE})"),
         });
     }
-    let config: TrainConfig = read_json(&config_path, "settings")?;
-    let losses_path = dir.join(LOSSES_FILE);
+    let config: TrainConfig = read_json(&folder.config_path(), "settings")?;
+    let losses_path = folder.losses_path();
     let text = datasets::atomic::read_text(&losses_path)?;
-    let (iterations, train_epochs, valid_epochs) =
-        parse_losses(&text).map_err(|what| TrainError::LossLog { path: losses_path.clone(), what })?;
+    let log = LossLog::parse(&text).map_err(|what| TrainError::LossLog { path: losses_path.clone(), what })?;
+    let train_epochs = log.points(RowKind::TrainEpoch);
     if train_epochs.is_empty() {
         return Err(TrainError::LossLog { path: losses_path, what: "no completed epoch yet".into() });
     }
-    let metrics_path = dir.join(METRICS_FILE);
+    let metrics_path = folder.metrics_path();
     let metrics = if metrics_path.is_file() { Some(read_json(&metrics_path, "metrics")?) } else { None };
-    let meta = checkpoint::read_meta(&dir.join(CHECKPOINT_DIR)).ok();
+    let meta = checkpoint::read_meta(&folder.checkpoint_dir()).ok();
     let name = dir.file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_else(|| dir.display().to_string());
-    Ok(RunRecord { name, dir: dir.to_path_buf(), config, iterations, train_epochs, valid_epochs, metrics, meta })
-}
-
-type Curves = (Vec<LossPoint>, Vec<LossPoint>, Vec<LossPoint>);
-
-/// Splits `losses.csv` into per-iteration, per-epoch training and
-/// validation points, by the header's column names; the error says which
-/// line is wrong.
-pub fn parse_losses(text: &str) -> Result<Curves, String> {
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines.next().ok_or("empty loss log")?.split(',').collect();
-    let col = |name: &str| header.iter().position(|h| *h == name).ok_or_else(|| format!("no column {name}"));
-    let (kind, epoch, iteration, loss, elapsed) =
-        (col("kind")?, col("epoch")?, col("iteration")?, col("loss")?, col("elapsed_s")?);
-    let mut out: Curves = Default::default();
-    for (n, line) in lines.enumerate() {
-        let f: Vec<&str> = line.split(',').collect();
-        let bad = || format!("line {}: cannot read {line:?}", n + 2);
-        if f.len() != header.len() {
-            return Err(bad());
-        }
-        let point = LossPoint {
-            epoch: f[epoch].parse().map_err(|_| bad())?,
-            iteration: f[iteration].parse().map_err(|_| bad())?,
-            loss: f[loss].parse().map_err(|_| bad())?,
-            elapsed_s: f[elapsed].parse().map_err(|_| bad())?,
-        };
-        match f[kind] {
-            "train" => out.0.push(point),
-            "train_epoch" => out.1.push(point),
-            "valid_epoch" => out.2.push(point),
-            other => return Err(format!("line {}: unknown row kind {other:?}", n + 2)),
-        }
-    }
-    Ok(out)
+    Ok(RunRecord {
+        name,
+        dir: dir.to_path_buf(),
+        config,
+        iterations: log.points(RowKind::Train),
+        train_epochs,
+        valid_epochs: log.points(RowKind::ValidEpoch),
+        metrics,
+        meta,
+    })
 }
 
 /// How much lower the first run's final training loss is than `other`'s, in

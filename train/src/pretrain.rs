@@ -87,7 +87,8 @@ pub fn pretrain(out: &Path, config: &PretrainConfig, show_progress: bool) -> Res
         if corpus.reused { " (reused)".to_string() } else { format!(" ({corpus_seconds:.0} s)") }
     );
     let run = out.join("run");
-    let train_config = if run.join(crate::trainer::CONFIG_FILE).is_file() {
+    let folder = crate::RunFolder::new(&run);
+    let train_config = if folder.holds_run() {
         eprintln!("continuing the pretraining run in {}", run.display());
         None
     } else {
@@ -104,9 +105,9 @@ pub fn pretrain(out: &Path, config: &PretrainConfig, show_progress: bool) -> Res
         Some(c)
     };
     let summary = crate::train(train_config, &run, show_progress)?;
-    let used: TrainConfig = read_json(&run.join(crate::trainer::CONFIG_FILE), "settings")?;
+    let used: TrainConfig = read_json(&folder.config_path(), "settings")?;
     let (det, network, checkpoint_meta) =
-        infer::checkpoint::load(&run.join(crate::trainer::CHECKPOINT_DIR), &burn::prelude::Device::flex())?;
+        infer::checkpoint::load(&folder.checkpoint_dir(), &burn::prelude::Device::flex())?;
     infer::checkpoint::save(&out.join(DETECTOR_DIR), &det, &network, &checkpoint_meta)?;
     let meta = TrunkMeta {
         backbone: det.backbone,

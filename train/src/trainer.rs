@@ -1,19 +1,8 @@
 //! The training loop: mini-batches, the optimizer and its learning-rate
 //! schedule, the loss log, a resumable state after every epoch, an
-//! inference checkpoint, and the final evaluation on the test split.
-//!
-//! A run folder holds:
-//! - `train_config.json`: the resolved settings;
-//! - `losses.csv`: `kind,epoch,iteration,loss,<4 parts>,lr,elapsed_s` where
-//!   `kind` is `train` (one row per iteration), `train_epoch` or
-//!   `valid_epoch` (means over an epoch);
-//! - `resume/`: model, optimizer and progress after the last full epoch;
-//! - `checkpoint/`: the folder `infer` and `localize` load;
-//! - `metrics.json`: AP@0.5, precision, recall, pixel error on the test split;
-//! - `pretrained.json`: with `--pretrained`, what was loaded from where.
+//! inference checkpoint, and the final evaluation on the test split. What
+//! lands where in the run's folder is [`RunFolder`]'s business.
 
-use std::fmt::Write as _;
-use std::path::Path;
 use std::time::Instant;
 
 use burn::grad_clipping::GradientClippingConfig;
@@ -27,39 +16,19 @@ use indicatif::{ProgressBar, ProgressStyle};
 use rand::SeedableRng;
 use rand::rngs::ChaCha8Rng;
 use rand::seq::SliceRandom;
-use serde::{Deserialize, Serialize};
 
 use crate::config::{OptimizerKind, Start, TrainConfig};
-use crate::error::{Result, TrainError, parse_json, read_json};
+use crate::error::{Result, TrainError};
 use crate::feature_cache::{FeatureCache, MAX_CACHE_BYTES};
-use crate::losses::{FASTER_RCNN_PARTS, GRID_PARTS};
+use crate::loss_log::{LOSS_VALUES, LossLog, RowKind};
+use crate::run_folder::{Progress, RunFolder};
 use crate::step::batch_losses;
 use infer::checkpoint::{self, CheckpointMeta};
-use infer::config::Backbone;
 use infer::labeled::{LabeledImage, load_coco_set};
 use infer::metrics::EvalMetrics;
 use infer::network::Network;
-use infer::pretrained::load_trunk;
+use infer::pretrained::{ImportReport, load_trunk};
 use infer::{Detector, eval};
-
-pub const CONFIG_FILE: &str = "train_config.json";
-pub const LOSSES_FILE: &str = "losses.csv";
-pub const RESUME_DIR: &str = "resume";
-pub const CHECKPOINT_DIR: &str = "checkpoint";
-pub const METRICS_FILE: &str = "metrics.json";
-/// What `--pretrained` loaded: tensors, unused ones, the input convention.
-pub const PRETRAINED_FILE: &str = "pretrained.json";
-const STATE_FILE: &str = "state.json";
-const OPTIMIZER_STEM: &str = "optimizer";
-
-/// Progress after a completed epoch.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-struct ResumeState {
-    epochs_done: usize,
-    elapsed_s: f64,
-    csv: String,
-}
-
 #[derive(Debug, Clone)]
 pub struct TrainSummary {
     pub metrics: EvalMetrics,
@@ -98,24 +67,23 @@ pub fn apply(network: Network, optim: &mut ModuleOptimizer, lr: f64, grads: burn
     }
 }
 
-fn csv_header(backbone: Backbone) -> String {
-    let parts = if backbone == Backbone::FasterRcnn { FASTER_RCNN_PARTS } else { GRID_PARTS };
-    format!("kind,epoch,iteration,loss,{},lr,elapsed_s\n", parts.join(","))
-}
-
 /// Splits the training set into (train, validation) deterministically.
-fn split(all: &[LabeledImage], fraction: f32, seed: u64) -> (Vec<&LabeledImage>, Vec<&LabeledImage>) {
+fn split(all: Vec<LabeledImage>, fraction: f32, seed: u64) -> (Vec<LabeledImage>, Vec<LabeledImage>) {
     let mut order: Vec<usize> = (0..all.len()).collect();
     order.shuffle(&mut ChaCha8Rng::seed_from_u64(mix(seed, 0x5417)));
     let n_val = (all.len() as f32 * fraction).round() as usize;
-    let valid = order[..n_val].iter().map(|&i| &all[i]).collect();
-    let train = order[n_val..].iter().map(|&i| &all[i]).collect();
+    let mut slots: Vec<Option<LabeledImage>> = all.into_iter().map(Some).collect();
+    let mut take = |ids: &[usize]| -> Vec<LabeledImage> {
+        ids.iter().map(|&i| slots[i].take().expect("each image once")).collect()
+    };
+    let valid = take(&order[..n_val]);
+    let train = take(&order[n_val..]);
     (train, valid)
 }
 
 /// Trains into `run`: a new run from `config`, or, with `None`, the run
 /// found there continued from its last completed epoch.
-pub fn train(config: Option<TrainConfig>, run: &Path, show_progress: bool) -> Result<TrainSummary> {
+pub fn train(config: Option<TrainConfig>, run: &std::path::Path, show_progress: bool) -> Result<TrainSummary> {
     train_until(config, run, show_progress, None).map(|s| s.expect("runs to the end without a stop"))
 }
 
@@ -123,127 +91,201 @@ pub fn train(config: Option<TrainConfig>, run: &Path, show_progress: bool) -> Re
 /// would (no final evaluation), returning `None` then.
 pub fn train_until(
     config: Option<TrainConfig>,
-    run: &Path,
+    run: &std::path::Path,
     show_progress: bool,
     stop_after: Option<usize>,
 ) -> Result<Option<TrainSummary>> {
-    let resume_dir = run.join(RESUME_DIR);
-    let (config, state) = match config {
+    let folder = RunFolder::new(run);
+    let (config, progress) = match config {
         Some(c) => {
             c.validate().map_err(TrainError::Settings)?;
             (c, None)
         }
-        None => {
-            // A kill can leave temporary files, and the resume state renamed
-            // aside between the two renames of its replacement.
-            datasets::atomic::remove_leftovers(run)?;
-            datasets::atomic::recover_dir(&resume_dir)?;
-            let path = run.join(CONFIG_FILE);
-            let text = datasets::atomic::read_text(&path).map_err(TrainError::NothingToResume)?;
-            let c: TrainConfig = parse_json(&path, "settings", &text)?;
-            let state_path = resume_dir.join(STATE_FILE);
-            let state = if state_path.is_file() { Some(read_json::<ResumeState>(&state_path, "state")?) } else { None };
-            (c, state)
-        }
+        None => folder.read_for_resume()?,
     };
+    let data = Splits::load(&config)?;
     let device = config.backend.device().autodiff();
-    let inner = device.clone().without_autodiff();
-    let det = &config.detector;
-    let train_json = config.data.join("train.json");
-    let test_json = config.data.join("test.json");
-    for p in [&train_json, &test_json] {
-        if !p.is_file() {
-            return Err(TrainError::Folder {
-                path: p.clone(),
-                what: "missing (--data must be a datagen detection folder with train.json and test.json)".into(),
-            });
-        }
+    let (network, mut optim, mut progress, pretrained) = start(&config, &folder, progress, &device, show_progress)?;
+    // Written once the settings proved usable (data read, weights loaded).
+    folder.write_settings(&config, pretrained.as_ref())?;
+    let network = network.freeze_convs(config.freeze);
+    let started_caching = Instant::now();
+    let caches = frozen_feature_caches(&config, &network, &data, &device, show_progress);
+    // Caching is part of what the run costs.
+    progress.elapsed_s += started_caching.elapsed().as_secs_f64();
+    if caches.is_some() && show_progress {
+        let seconds = started_caching.elapsed().as_secs_f64();
+        eprintln!("cached the outputs of the {} frozen convolutions in {seconds:.0} s", config.freeze);
     }
-    let all = load_coco_set(&train_json, &det.preprocess)?;
-    let test = load_coco_set(&test_json, &det.preprocess)?;
-    if all.is_empty() {
-        return Err(TrainError::Folder { path: train_json, what: "no training images".into() });
-    }
-    let (train_set, valid_set) = split(&all, config.val_fraction, config.seed);
 
-    // Flex keeps one global RNG: seed it before the weights are drawn.
-    device.seed(config.seed);
-    let mut network = Network::new(det, &device);
-    let mut optim = optimizer(&config);
-    let (mut epochs_done, mut elapsed, mut csv) = (0, 0.0, csv_header(det.backbone));
-    let mut pretrained_report = None;
-    if let Some(s) = state {
-        network = checkpoint::load_weights(&resume_dir, det, &device).map_err(TrainError::ResumeWeights)?;
-        optim = optim
-            .load(resume_dir.join(format!("{OPTIMIZER_STEM}.bpk")))
-            .map_err(|source| TrainError::Optimizer { what: "loading", source })?;
-        (epochs_done, elapsed, csv) = (s.epochs_done, s.elapsed_s, s.csv);
-        eprintln!("resuming {} after epoch {epochs_done} of {}", run.display(), config.epochs);
-    } else if let Start::Detector(path) = &config.start {
-        network = checkpoint::load_for_fine_tuning(path, det, &device)?;
-        if show_progress {
-            eprintln!("{}: whole detector loaded (trunk, heads)", path.display());
-        }
-    } else if let Start::Trunk(path) = &config.start {
-        let report = load_trunk(&mut network, det, path, config.pretrained_input, config.pretrained_prune)?;
+    let epochs = Epochs { config: &config, data: &data, caches, device, show_progress };
+    let mut network = network;
+    let mut last_epoch = None;
+    for epoch in progress.epochs_done..config.epochs {
+        let started = Instant::now();
+        network = epochs.train(network, &mut optim, epoch, &mut progress)?;
+        progress.elapsed_s += started.elapsed().as_secs_f64();
+        let (train_loss, valid_loss) = epochs.close(&network, epoch, &mut progress);
         if show_progress {
             eprintln!(
-                "{}: {} tensors loaded ({:?} input convention); unused: {}",
-                path.display(),
-                report.loaded.len() * 2,
-                report.convention,
-                if report.unused.is_empty() { "none".to_string() } else { report.unused.join(", ") }
+                "epoch {}/{}: train loss {train_loss:.4}{} ({:.0} s)",
+                epoch + 1,
+                config.epochs,
+                valid_loss.map(|v| format!(", valid loss {v:.4}")).unwrap_or_default(),
+                progress.elapsed_s
             );
-            for s in &report.skipped {
-                eprintln!("  not loaded: {s}");
+        }
+        progress.epochs_done = epoch + 1;
+        let meta = meta_for(&config, &network, epoch + 1, progress.elapsed_s);
+        folder.save_epoch(&config.detector, &network, &optim, &progress, &meta)?;
+        last_epoch = Some((train_loss, valid_loss));
+        if stop_after == Some(epoch + 1) {
+            return Ok(None);
+        }
+    }
+    let inner = epochs.device.clone().without_autodiff();
+    let metrics = evaluate(&folder, &config, &network, &data.test, &inner, progress.elapsed_s)?;
+    // Resumed after the last epoch: the logged final losses.
+    let (final_train_loss, final_valid_loss) = last_epoch.unwrap_or_else(|| {
+        (progress.log.last(RowKind::TrainEpoch).unwrap_or(f64::NAN), progress.log.last(RowKind::ValidEpoch))
+    });
+    Ok(Some(TrainSummary { metrics, final_train_loss, final_valid_loss, seconds: progress.elapsed_s }))
+}
+
+/// The images of a run: training and validation (split from `train.json`)
+/// and test (`test.json`).
+struct Splits {
+    train: Vec<LabeledImage>,
+    valid: Vec<LabeledImage>,
+    test: Vec<LabeledImage>,
+}
+
+impl Splits {
+    fn load(config: &TrainConfig) -> Result<Self> {
+        let train_json = config.data.join("train.json");
+        let test_json = config.data.join("test.json");
+        for p in [&train_json, &test_json] {
+            if !p.is_file() {
+                return Err(TrainError::Folder {
+                    path: p.clone(),
+                    what: "missing (--data must be a datagen detection folder with train.json and test.json)".into(),
+                });
             }
         }
-        pretrained_report = Some(report);
-    }
-    // Written once the settings proved usable (data read, weights loaded).
-    std::fs::create_dir_all(run).map_err(|source| TrainError::Create { path: run.to_path_buf(), source })?;
-    datasets::atomic::write_json(&run.join(CONFIG_FILE), &config)?;
-    if let Some(report) = &pretrained_report {
-        datasets::atomic::write_json(&run.join(PRETRAINED_FILE), report)?;
-    }
-    network = network.freeze_convs(config.freeze);
-    let started_caching = Instant::now();
-    let caches = frozen_feature_caches(&config, &network, &train_set, &valid_set, &inner, show_progress);
-    // Caching is part of what the run costs.
-    elapsed += started_caching.elapsed().as_secs_f64();
-    if caches.is_some() && show_progress {
-        eprintln!(
-            "cached the outputs of the {} frozen convolutions in {:.0} s",
-            config.freeze,
-            started_caching.elapsed().as_secs_f64()
-        );
+        let all = load_coco_set(&train_json, &config.detector.preprocess)?;
+        let test = load_coco_set(&test_json, &config.detector.preprocess)?;
+        if all.is_empty() {
+            return Err(TrainError::Folder { path: train_json, what: "no training images".into() });
+        }
+        let (train, valid) = split(all, config.val_fraction, config.seed);
+        Ok(Self { train, valid, test })
     }
 
-    let per_epoch = train_set.len().div_ceil(config.batch_size);
-    let total = per_epoch * config.epochs;
-    let size = det.preprocess.size;
-    let mut last_train = f64::NAN;
-    let mut last_valid = None;
-    for epoch in epochs_done..config.epochs {
+    fn train_refs(&self) -> Vec<&LabeledImage> {
+        self.train.iter().collect()
+    }
+
+    fn valid_refs(&self) -> Vec<&LabeledImage> {
+        self.valid.iter().collect()
+    }
+}
+
+/// The network, optimizer and progress a run starts from: its resume state,
+/// or a fresh network (its weights drawn from the run's seed, then
+/// overwritten by a whole detector or a trunk file if the run starts from
+/// one). A trunk file's import report comes back to be written.
+fn start(
+    config: &TrainConfig,
+    folder: &RunFolder,
+    progress: Option<Progress>,
+    device: &Device,
+    show_progress: bool,
+) -> Result<(Network, ModuleOptimizer, Progress, Option<ImportReport>)> {
+    let det = &config.detector;
+    // Flex keeps one global RNG: seed it before the weights are drawn.
+    device.seed(config.seed);
+    let network = Network::new(det, device);
+    let optim = optimizer(config);
+    if let Some(progress) = progress {
+        let (network, optim) = folder.load_resume(det, optim, device)?;
+        eprintln!("resuming {} after epoch {} of {}", folder.root().display(), progress.epochs_done, config.epochs);
+        return Ok((network, optim, progress, None));
+    }
+    let fresh = Progress { epochs_done: 0, elapsed_s: 0.0, log: LossLog::new(det.backbone) };
+    match &config.start {
+        Start::Scratch => Ok((network, optim, fresh, None)),
+        Start::Detector(path) => {
+            let network = checkpoint::load_for_fine_tuning(path, det, device)?;
+            if show_progress {
+                eprintln!("{}: whole detector loaded (trunk, heads)", path.display());
+            }
+            Ok((network, optim, fresh, None))
+        }
+        Start::Trunk(path) => {
+            let mut network = network;
+            let report = load_trunk(&mut network, det, path, config.pretrained_input, config.pretrained_prune)?;
+            if show_progress {
+                eprintln!(
+                    "{}: {} tensors loaded ({:?} input convention); unused: {}",
+                    path.display(),
+                    report.loaded.len() * 2,
+                    report.convention,
+                    if report.unused.is_empty() { "none".to_string() } else { report.unused.join(", ") }
+                );
+                for s in &report.skipped {
+                    eprintln!("  not loaded: {s}");
+                }
+            }
+            Ok((network, optim, fresh, Some(report)))
+        }
+    }
+}
+
+/// The epochs of a run, over its data and the frozen layers' cached outputs.
+struct Epochs<'a> {
+    config: &'a TrainConfig,
+    data: &'a Splits,
+    caches: Option<(FeatureCache, FeatureCache)>,
+    /// The training device (with autodiff).
+    device: Device,
+    show_progress: bool,
+}
+
+impl Epochs<'_> {
+    fn batches_per_epoch(&self) -> usize {
+        self.data.train.len().div_ceil(self.config.batch_size)
+    }
+
+    /// One pass over the shuffled training images: a step per mini-batch, a
+    /// `train` row per step in the log.
+    fn train(
+        &self,
+        mut network: Network,
+        optim: &mut ModuleOptimizer,
+        epoch: usize,
+        progress: &mut Progress,
+    ) -> Result<Network> {
+        let (config, det) = (self.config, &self.config.detector);
         let started = Instant::now();
-        device.seed(mix(config.seed, epoch as u64 + 1));
+        let train_set = self.data.train_refs();
+        let per_epoch = self.batches_per_epoch();
+        let total = per_epoch * config.epochs;
+        self.device.seed(mix(config.seed, epoch as u64 + 1));
         let mut rng = ChaCha8Rng::seed_from_u64(mix(config.seed, 1000 + epoch as u64));
         let mut order: Vec<usize> = (0..train_set.len()).collect();
         order.shuffle(&mut rng);
-        let bar = if show_progress { ProgressBar::new(per_epoch as u64) } else { ProgressBar::hidden() };
+        let bar = if self.show_progress { ProgressBar::new(per_epoch as u64) } else { ProgressBar::hidden() };
         bar.set_style(
             ProgressStyle::with_template("epoch {prefix} [{bar:30}] {pos}/{len} {msg} ({eta})")
                 .expect("template")
                 .progress_chars("=> "),
         );
         bar.set_prefix(format!("{}/{}", epoch + 1, config.epochs));
-        let mut sums = [0.0f64; 5];
+        let cache = self.caches.as_ref().map(|(train, _)| train);
         for (k, chunk) in order.chunks(config.batch_size).enumerate() {
             let iteration = epoch * per_epoch + k;
-            let images: Vec<&LabeledImage> = chunk.iter().map(|&i| train_set[i]).collect();
-            let flips: Vec<bool> = images.iter().map(|_| config.augment && crate::targets::coin(&mut rng)).collect();
-            let batch =
-                FeatureCache::batch_of(caches.as_ref().map(|(t, _)| t), &train_set, chunk, &flips, size, &device);
+            let flips: Vec<bool> = chunk.iter().map(|_| config.augment && crate::targets::coin(&mut rng)).collect();
+            let batch = FeatureCache::batch_of(cache, &train_set, chunk, &flips, det.preprocess.size, &self.device);
             let losses = batch_losses(&network, det, &batch, &mut rng);
             let values: Vec<f64> = std::iter::once(&losses.total)
                 .chain(losses.parts.iter().map(|(_, t)| t))
@@ -253,75 +295,56 @@ pub fn train_until(
                 return Err(TrainError::Diverged { loss: values[0], epoch: epoch + 1, iteration });
             }
             let lr = config.lr_at(iteration, total);
-            network = apply(network, &mut optim, lr, losses.total.backward());
-            for (s, v) in sums.iter_mut().zip(&values) {
-                *s += v;
-            }
-            let now = elapsed + started.elapsed().as_secs_f64();
-            let _ = writeln!(csv, "train,{},{iteration},{}", epoch + 1, row(&values, lr, now));
+            network = apply(network, optim, lr, losses.total.backward());
+            let now = progress.elapsed_s + started.elapsed().as_secs_f64();
+            progress.log.push(RowKind::Train, epoch + 1, iteration, &values, lr, now);
             bar.set_message(format!("loss {:.4}", values[0]));
             bar.inc(1);
         }
         bar.finish_and_clear();
-        let n = per_epoch as f64;
-        let means: Vec<f64> = sums.iter().map(|s| s / n).collect();
-        last_train = means[0];
+        Ok(network)
+    }
+
+    /// Logs the epoch's mean training loss and, with a validation split, its
+    /// validation loss; returns them as (train, valid).
+    fn close(&self, network: &Network, epoch: usize, progress: &mut Progress) -> (f64, Option<f64>) {
+        let per_epoch = self.batches_per_epoch();
         let end_iteration = (epoch + 1) * per_epoch - 1;
-        elapsed += started.elapsed().as_secs_f64();
-        let lr = config.lr_at(end_iteration, total);
-        let _ = writeln!(csv, "train_epoch,{},{end_iteration},{}", epoch + 1, row(&means, lr, elapsed));
-        if !valid_set.is_empty() {
-            let v = validation_loss(&network, &config, &valid_set, caches.as_ref().map(|(_, v)| v), &inner);
-            last_valid = Some(v[0]);
-            let _ = writeln!(csv, "valid_epoch,{},{end_iteration},{}", epoch + 1, row(&v, lr, elapsed));
+        let lr = self.config.lr_at(end_iteration, per_epoch * self.config.epochs);
+        let mut sums = [0.0f64; LOSS_VALUES];
+        for row in progress.log.rows().iter().filter(|r| r.kind == RowKind::Train && r.epoch == epoch + 1) {
+            for (s, v) in sums.iter_mut().zip(&row.values) {
+                *s += v;
+            }
         }
-        if show_progress {
-            eprintln!(
-                "epoch {}/{}: train loss {:.4}{} ({:.0} s)",
-                epoch + 1,
-                config.epochs,
-                last_train,
-                last_valid.map(|v| format!(", valid loss {v:.4}")).unwrap_or_default(),
-                elapsed
-            );
+        let means = sums.map(|s| s / per_epoch as f64);
+        progress.log.push(RowKind::TrainEpoch, epoch + 1, end_iteration, &means, lr, progress.elapsed_s);
+        if self.data.valid.is_empty() {
+            return (means[0], None);
         }
-        datasets::atomic::write_bytes(&run.join(LOSSES_FILE), csv.as_bytes())?;
-        save_resume(
-            &resume_dir,
-            &network,
-            &optim,
-            &ResumeState { epochs_done: epoch + 1, elapsed_s: elapsed, csv: csv.clone() },
-        )?;
-        let meta = meta_for(&config, &network, epoch + 1, elapsed);
-        checkpoint::save(&run.join(CHECKPOINT_DIR), det, &network, &meta)?;
-        if stop_after == Some(epoch + 1) {
-            return Ok(None);
-        }
+        let inner = self.device.clone().without_autodiff();
+        let cache = self.caches.as_ref().map(|(_, valid)| valid);
+        let v = validation_loss(network, self.config, &self.data.valid_refs(), cache, &inner);
+        progress.log.push(RowKind::ValidEpoch, epoch + 1, end_iteration, &v, lr, progress.elapsed_s);
+        (means[0], Some(v[0]))
     }
+}
 
-    // Final evaluation on the test split.
-    let meta = meta_for(&config, &network, config.epochs, elapsed);
-    let detector = Detector::from_network(det.clone(), meta.clone(), &network, inner.clone());
-    let metrics = eval::evaluate_set(&detector, &test, config.batch_size);
-    datasets::atomic::write_json(&run.join(METRICS_FILE), &metrics)?;
+/// The final evaluation on the test split, written with the checkpoint.
+fn evaluate(
+    folder: &RunFolder,
+    config: &TrainConfig,
+    network: &Network,
+    test: &[LabeledImage],
+    device: &Device,
+    seconds: f64,
+) -> Result<EvalMetrics> {
+    let meta = meta_for(config, network, config.epochs, seconds);
+    let detector = Detector::from_network(config.detector.clone(), meta.clone(), network, device.clone());
+    let metrics = eval::evaluate_set(&detector, test, config.batch_size);
     let meta = CheckpointMeta { metrics: Some(metrics.clone()), ..meta };
-    checkpoint::save(&run.join(CHECKPOINT_DIR), det, &network, &meta)?;
-    if last_train.is_nan() {
-        // Resumed after the last epoch: report the logged final losses.
-        last_train = final_value(&csv, "train_epoch").unwrap_or(f64::NAN);
-        last_valid = final_value(&csv, "valid_epoch");
-    }
-    Ok(Some(TrainSummary { metrics, final_train_loss: last_train, final_valid_loss: last_valid, seconds: elapsed }))
-}
-
-fn final_value(csv: &str, kind: &str) -> Option<f64> {
-    csv.lines().rfind(|l| l.starts_with(&format!("{kind},")))?.split(',').nth(3)?.parse().ok()
-}
-
-fn row(values: &[f64], lr: f64, elapsed: f64) -> String {
-    let mut parts: Vec<String> = values.iter().map(|v| format!("{v:.6}")).collect();
-    parts.resize(5, "0".into());
-    format!("{},{lr:.6e},{elapsed:.2}", parts.join(","))
+    folder.save_result(&config.detector, network, &metrics, &meta)?;
+    Ok(metrics)
 }
 
 /// Checkpoint metadata without metrics (added after the final evaluation).
@@ -350,7 +373,7 @@ fn validation_loss(
 ) -> Vec<f64> {
     let model = network.valid();
     let mut rng = ChaCha8Rng::seed_from_u64(mix(config.seed, 0xda7a));
-    let mut sums = [0.0f64; 5];
+    let mut sums = [0.0f64; LOSS_VALUES];
     let mut batches = 0;
     let ids: Vec<usize> = (0..valid.len()).collect();
     for ids in ids.chunks(config.batch_size) {
@@ -372,14 +395,15 @@ fn validation_loss(
 fn frozen_feature_caches(
     config: &TrainConfig,
     network: &Network,
-    train_set: &[&LabeledImage],
-    valid_set: &[&LabeledImage],
+    data: &Splits,
     device: &Device,
     show_progress: bool,
 ) -> Option<(FeatureCache, FeatureCache)> {
     if config.freeze == 0 || !config.cache_frozen {
         return None;
     }
+    let device = &device.clone().without_autodiff();
+    let (train_set, valid_set) = (data.train_refs(), data.valid_refs());
     let size = config.detector.preprocess.size;
     let entries = train_set.len() * if config.augment { 2 } else { 1 } + valid_set.len();
     let bytes = FeatureCache::estimate_bytes(network, config.freeze, size, entries, device);
@@ -393,15 +417,5 @@ fn frozen_feature_caches(
     let build = |images: &[&LabeledImage], flips| {
         FeatureCache::build(network, images, flips, config.freeze, config.batch_size, device, show_progress)
     };
-    Some((build(train_set, config.augment), build(valid_set, false)))
-}
-
-/// Writes the resume state atomically (a new folder renamed into place).
-fn save_resume(dir: &Path, network: &Network, optim: &ModuleOptimizer, state: &ResumeState) -> Result<()> {
-    datasets::atomic::write_dir(dir, |tmp| -> Result<()> {
-        checkpoint::save_weights(network, &tmp.join(checkpoint::WEIGHTS_STEM))?;
-        optim.save(tmp.join(OPTIMIZER_STEM)).map_err(|source| TrainError::Optimizer { what: "writing", source })?;
-        datasets::atomic::write_json(&tmp.join(STATE_FILE), state)?;
-        Ok(())
-    })
+    Some((build(&train_set, config.augment), build(&valid_set, false)))
 }

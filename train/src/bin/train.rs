@@ -91,7 +91,7 @@ fn run_main() -> Result<()> {
             if !data.is_dir() {
                 bail!("--data {}: not a folder", data.display());
             }
-            if out.join(train::trainer::CONFIG_FILE).exists() {
+            if train::RunFolder::new(out).holds_run() {
                 bail!(
                     "--out {} already holds a run: use --resume {} to continue it, or another folder",
                     out.display(),
