@@ -11,6 +11,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::InvalidSetting;
 use crate::math::{Point3, Vec3};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -30,13 +31,19 @@ impl PinholeCamera {
         Self { width: 640, height: 480, fx: 525.0, fy: 525.0, cx: 319.5, cy: 239.5 }
     }
 
-    pub fn validate(&self) -> Result<(), String> {
-        let finite = [self.fx, self.fy, self.cx, self.cy].iter().all(|v| v.is_finite());
-        if !finite || self.fx <= 0.0 || self.fy <= 0.0 {
-            return Err(format!("focal lengths must be finite and positive (fx {}, fy {})", self.fx, self.fy));
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
+        for (field, focal) in [("fx", self.fx), ("fy", self.fy)] {
+            if !(focal.is_finite() && focal > 0.0) {
+                return Err(InvalidSetting::field(field, format!("focal length {focal} must be finite and positive")));
+            }
+        }
+        for (field, centre) in [("cx", self.cx), ("cy", self.cy)] {
+            if !centre.is_finite() {
+                return Err(InvalidSetting::field(field, format!("principal point {centre} must be finite")));
+            }
         }
         if self.width == 0 || self.height == 0 {
-            return Err(format!("image size {}x{} is empty", self.width, self.height));
+            return Err(InvalidSetting::between(format!("image size {}x{} is empty", self.width, self.height)));
         }
         Ok(())
     }

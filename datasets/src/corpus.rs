@@ -10,6 +10,7 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
+use crate::InvalidSetting;
 use crate::atomic;
 use crate::error::{DataError, Result};
 use crate::generate::{DatagenConfig, key, progress, render_views, stream, write_coco_splits};
@@ -47,21 +48,24 @@ impl CorpusConfig {
         (self.worlds + self.buildings) * self.images_per_world
     }
 
-    pub fn validate(&self) -> std::result::Result<(), String> {
-        if self.worlds + self.buildings == 0 || self.images_per_world == 0 {
-            return Err("the corpus needs at least one world and one image per world".into());
+    pub fn validate(&self) -> std::result::Result<(), InvalidSetting> {
+        if self.worlds + self.buildings == 0 {
+            return Err(InvalidSetting::between("the corpus needs at least one world or building"));
+        }
+        if self.images_per_world == 0 {
+            return Err(InvalidSetting::field("images_per_world", "must be at least 1"));
         }
         if self.images() > 1_000_000 {
-            return Err(format!("{} images is more than a corpus needs (at most 1000000)", self.images()));
+            let problem = format!("{} images in all is more than a corpus needs (at most 1000000)", self.images());
+            return Err(InvalidSetting::field("images_per_world", problem));
         }
         if self.buildings > 0 && self.first_building < 6 {
-            return Err(format!(
-                "first_building {} would train on the benchmark's buildings 1-5 (use 6 or more)",
-                self.first_building
-            ));
+            let problem =
+                format!("{} would train on the benchmark's buildings 1-5 (use 6 or more)", self.first_building);
+            return Err(InvalidSetting::field("first_building", problem));
         }
         if self.test_every < 2 {
-            return Err(format!("test_every {} must be at least 2", self.test_every));
+            return Err(InvalidSetting::field("test_every", format!("{} must be at least 2", self.test_every)));
         }
         Ok(())
     }
@@ -108,7 +112,7 @@ pub struct CorpusSummary {
 /// `test.json`, `corpus.json`) unless it is already there with the same
 /// settings. `base` gives the camera labels and preprocessing.
 pub fn generate_corpus(out: &Path, config: &CorpusConfig, base: &DatagenConfig) -> Result<CorpusSummary> {
-    config.validate().map_err(|m| DataError::invalid(out, format!("invalid corpus settings: {m}")))?;
+    config.validate().map_err(|e| DataError::setting(out, e.within("corpus")))?;
     let marker = out.join(CORPUS_FILE);
     let stamp = serde_json::json!({ "corpus": config, "labels": base.labels, "preprocess": base.preprocess });
     if let Ok(text) = std::fs::read_to_string(&marker)
@@ -149,8 +153,11 @@ mod tests {
         assert_eq!(config.world_or_building(2).building, 40);
         assert_eq!(config.world_or_building(4).building, 42);
         let benchmark = CorpusConfig { buildings: 1, first_building: 5, ..config.clone() };
-        assert!(benchmark.validate().unwrap_err().contains("benchmark's buildings 1-5"));
+        assert_eq!(benchmark.validate().unwrap_err().field, "first_building");
         assert!(CorpusConfig { worlds: 0, buildings: 0, ..config.clone() }.validate().is_err());
-        assert!(CorpusConfig { images_per_world: 1 << 20, ..config }.validate().unwrap_err().contains("at most"));
+        assert_eq!(
+            CorpusConfig { images_per_world: 1 << 20, ..config }.validate().unwrap_err().field,
+            "images_per_world"
+        );
     }
 }

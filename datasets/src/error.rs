@@ -17,6 +17,14 @@ pub enum DataError {
     Byte { path: PathBuf, offset: u64, message: String },
     #[error("{path}: {message}")]
     Invalid { path: PathBuf, message: String },
+    /// A settings file, or the settings of the run that writes `path`, that
+    /// the code cannot run with.
+    #[error("{path}: {source}")]
+    Setting {
+        path: PathBuf,
+        #[source]
+        source: crate::InvalidSetting,
+    },
     /// A message of a recording: `index` counts the topic's messages from 0.
     #[error("{path}: topic {topic}, message {index}: {message}")]
     Message { path: PathBuf, topic: String, index: u64, message: String },
@@ -48,6 +56,9 @@ impl DataError {
     }
     pub fn invalid(path: &Path, message: impl Into<String>) -> Self {
         Self::Invalid { path: path.to_path_buf(), message: message.into() }
+    }
+    pub fn setting(path: &Path, source: crate::InvalidSetting) -> Self {
+        Self::Setting { path: path.to_path_buf(), source }
     }
     pub fn message(path: &Path, topic: &str, index: u64, message: impl Into<String>) -> Self {
         Self::Message { path: path.to_path_buf(), topic: topic.to_string(), index, message: message.into() }

@@ -14,6 +14,7 @@ pub mod corpus;
 pub mod error;
 pub mod formats;
 pub mod generate;
+pub mod invalid_setting;
 pub mod math;
 pub mod plot;
 pub mod preprocess;
@@ -22,3 +23,4 @@ pub mod undistort;
 pub mod world;
 
 pub use error::{DataError, Result};
+pub use invalid_setting::InvalidSetting;

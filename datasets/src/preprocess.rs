@@ -5,6 +5,7 @@
 use image::{DynamicImage, GrayImage, imageops};
 use serde::{Deserialize, Serialize};
 
+use crate::InvalidSetting;
 use crate::bbox::BBox;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -29,16 +30,16 @@ impl Default for PreprocessConfig {
 }
 
 impl PreprocessConfig {
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
         if self.size < 16 {
-            return Err(format!("size {} is below 16 pixels", self.size));
+            return Err(InvalidSetting::field("size", format!("{} is below 16 pixels", self.size)));
         }
-        let ok = self.canny_low.is_finite() && self.canny_high.is_finite() && self.canny_low >= 0.0;
-        if !ok || self.canny_low > self.canny_high {
-            return Err(format!(
-                "Canny thresholds must be finite with 0 <= low <= high (low {}, high {})",
-                self.canny_low, self.canny_high
-            ));
+        if !(self.canny_low.is_finite() && self.canny_low >= 0.0) {
+            return Err(InvalidSetting::field("canny_low", format!("{} must be finite and >= 0", self.canny_low)));
+        }
+        if !(self.canny_high.is_finite() && self.canny_high >= self.canny_low) {
+            let problem = format!("{} must be finite and >= canny_low {}", self.canny_high, self.canny_low);
+            return Err(InvalidSetting::field("canny_high", problem));
         }
         Ok(())
     }
@@ -120,7 +121,10 @@ mod tests {
     #[test]
     fn invalid_thresholds_are_reported() {
         let c = PreprocessConfig { canny_low: 90.0, canny_high: 10.0, ..Default::default() };
-        assert!(c.validate().unwrap_err().contains("low"));
+        assert_eq!(c.validate().unwrap_err().field, "canny_high");
+        let nan = PreprocessConfig { canny_low: f32::NAN, ..Default::default() };
+        assert_eq!(nan.validate().unwrap_err().field, "canny_low");
+        assert_eq!(PreprocessConfig { size: 8, ..Default::default() }.validate().unwrap_err().field, "size");
         assert!(PreprocessConfig::default().validate().is_ok());
     }
 }

@@ -15,15 +15,15 @@ fn bad_flags_and_settings_are_named() {
     let o = out.to_str().unwrap();
 
     let (ok, err) = datagen(&["--out", o, "--speed", "-1"]);
-    assert!(!ok && err.contains("speed -1 m/s"), "{err}");
+    assert!(!ok && err.contains("sequence.speed_mps: -1 m/s"), "{err}");
     let (ok, err) = datagen(&["--out", o, "--speed", "fast"]);
     assert!(!ok && err.contains("--speed") && err.contains("fast"), "{err}");
     let (ok, err) = datagen(&["--out", o, "--images", "10", "--train", "20"]);
-    assert!(!ok && err.contains("train split 20 is larger than the 10 images"), "{err}");
+    assert!(!ok && err.contains("detection.train: 20 is larger than the 10 images"), "{err}");
     let (ok, err) = datagen(&["--out", o, "--frames", "0"]);
-    assert!(!ok && err.contains("frames must be at least 1"), "{err}");
+    assert!(!ok && err.contains("sequence.frames: must be at least 1"), "{err}");
     let (ok, err) = datagen(&["--out", o, "--building", "2000000"]);
-    assert!(!ok && err.contains("building 2000000 outside"), "{err}");
+    assert!(!ok && err.contains("world.building: 2000000 outside"), "{err}");
     let (ok, err) = datagen(&["--out", o, "--building", "-3"]);
     assert!(!ok && err.contains("--building"), "{err}");
     let (ok, err) = datagen(&["--out", o, "--colour", "red"]);
@@ -33,7 +33,7 @@ fn bad_flags_and_settings_are_named() {
     let settings = dir.path().join("settings.json");
     std::fs::write(&settings, r#"{"world": {"ramp_slope_deg": 45}}"#).unwrap();
     let (ok, err) = datagen(&["--out", o, "--config", settings.to_str().unwrap()]);
-    assert!(!ok && err.contains("ramp slope 45"), "{err}");
+    assert!(!ok && err.contains("settings.json") && err.contains("world.ramp_slope_deg: 45 deg"), "{err}");
     std::fs::write(&settings, r#"{"wrld": {}}"#).unwrap();
     let (ok, err) = datagen(&["--out", o, "--config", settings.to_str().unwrap()]);
     assert!(!ok && err.contains("settings.json") && err.contains("wrld"), "{err}");

@@ -372,7 +372,8 @@ fn calibration_round_trips_and_rejects_bad_matrices() {
 
     let text = std::fs::read_to_string(&path).unwrap();
     std::fs::write(&path, text.replacen("525.0", "-1.0", 1)).unwrap();
-    assert!(message(read_calibration(&path).unwrap_err()).contains("focal lengths"));
+    let focal = message(read_calibration(&path).unwrap_err());
+    assert!(focal.contains("camera.fx: focal length -1 must be finite and positive"), "{focal}");
     let bad = r#"{"camera": {"width": 640, "height": 480, "fx": 525, "fy": 525, "cx": 319.5, "cy": 239.5},
         "camera_from_lidar": [[2,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}"#;
     std::fs::write(&path, bad).unwrap();

@@ -6,6 +6,7 @@
 use std::path::{Path, PathBuf};
 
 use burn::prelude::*;
+use datasets::InvalidSetting;
 use serde::{Deserialize, Serialize};
 
 use crate::config::{Backbone, DetectorConfig};
@@ -40,8 +41,25 @@ pub enum CheckpointError {
     Data(#[from] datasets::DataError),
     #[error("{path}: {message}")]
     Invalid { path: PathBuf, message: String },
-    #[error("{path}: the weights do not fit the network of {config} ({message})")]
-    Weights { path: PathBuf, config: PathBuf, message: String },
+    #[error("{path}: {source}")]
+    Setting {
+        path: PathBuf,
+        #[source]
+        source: InvalidSetting,
+    },
+    #[error("{path}: the weights do not fit the network of {config}")]
+    Weights {
+        path: PathBuf,
+        config: PathBuf,
+        #[source]
+        source: burn::store::RecordError,
+    },
+    #[error("{path}: cannot write the weights")]
+    Save {
+        path: PathBuf,
+        #[source]
+        source: burn::store::RecordError,
+    },
 }
 
 /// Writes a checkpoint folder atomically: into a temporary sibling folder,
@@ -65,7 +83,7 @@ pub fn save_weights(network: &Network, stem: &Path) -> Result<(), CheckpointErro
         Network::FasterRcnn(m) => m.clone().save_file(stem),
         Network::Grid(m) => m.clone().save_file(stem),
     };
-    result.map_err(|e| CheckpointError::Invalid { path: stem.with_extension("bpk"), message: e.to_string() })
+    result.map_err(|source| CheckpointError::Save { path: stem.with_extension("bpk"), source })
 }
 
 pub fn read_config(dir: &Path) -> Result<DetectorConfig, CheckpointError> {
@@ -76,7 +94,7 @@ pub fn read_config(dir: &Path) -> Result<DetectorConfig, CheckpointError> {
 /// A validated detector configuration from the text of `path`.
 pub fn parse_config(path: &Path, text: &str) -> Result<DetectorConfig, CheckpointError> {
     let config: DetectorConfig = serde_json::from_str(text).map_err(|e| datasets::DataError::json(path, e))?;
-    config.validate().map_err(|message| CheckpointError::Invalid { path: path.to_path_buf(), message })?;
+    config.validate().map_err(|source| CheckpointError::Setting { path: path.to_path_buf(), source })?;
     Ok(config)
 }
 
@@ -103,10 +121,10 @@ pub fn load_weights(dir: &Path, config: &DetectorConfig, device: &Device) -> Res
     if !path.is_file() {
         return Err(CheckpointError::Invalid { path, message: "weights file is missing".into() });
     }
-    let weights_error = |e: burn::store::RecordError| CheckpointError::Weights {
+    let weights_error = |source: burn::store::RecordError| CheckpointError::Weights {
         path: path.clone(),
         config: dir.join(CONFIG_FILE),
-        message: e.to_string(),
+        source,
     };
     let network = match Network::new(config, device) {
         Network::FasterRcnn(m) => Network::FasterRcnn(m.try_load_file(&path).map_err(weights_error)?),

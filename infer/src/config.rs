@@ -2,6 +2,7 @@
 //! its heads. It is saved with every checkpoint, and inference rebuilds the
 //! network from it.
 
+use datasets::InvalidSetting;
 use datasets::preprocess::PreprocessConfig;
 use serde::{Deserialize, Serialize};
 
@@ -220,27 +221,40 @@ impl DetectorConfig {
         self.preprocess.size as usize
     }
 
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
         if !(self.width > 0.0 && self.width <= 4.0) {
-            return Err(format!("width {} outside (0, 4]", self.width));
+            return Err(InvalidSetting::field("width", format!("{} outside (0, 4]", self.width)));
         }
-        if self.in_channels == 0 || self.num_classes == 0 || self.hidden == 0 {
-            return Err("in_channels, num_classes and hidden must be positive".into());
+        for (field, value) in
+            [("in_channels", self.in_channels), ("num_classes", self.num_classes), ("hidden", self.hidden)]
+        {
+            if value == 0 {
+                return Err(InvalidSetting::field(field, "must be at least 1"));
+            }
         }
-        self.preprocess.validate()?;
+        self.preprocess.validate().map_err(|e| e.within("preprocess"))?;
         let size = self.input_size();
         if !size.is_multiple_of(32) || size < 64 {
-            return Err(format!("input size {size} must be a multiple of 32 and at least 64"));
+            return Err(InvalidSetting::field(
+                "preprocess.size",
+                format!("{size} must be a multiple of 32 and at least 64"),
+            ));
         }
         if self.grid_cells == 0 || !size.is_multiple_of(self.grid_cells) {
-            return Err(format!("grid of {} cells does not divide the input size {size}", self.grid_cells));
+            let problem = format!("a grid of {} cells does not divide the input size {size}", self.grid_cells);
+            return Err(InvalidSetting::field("grid_cells", problem));
         }
-        if self.anchors.sizes.is_empty() || self.anchors.aspect_ratios.is_empty() {
-            return Err("anchors need at least one size and one aspect ratio".into());
+        if self.anchors.sizes.is_empty() {
+            return Err(InvalidSetting::field("anchors.sizes", "needs at least one size"));
+        }
+        if self.anchors.aspect_ratios.is_empty() {
+            return Err(InvalidSetting::field("anchors.aspect_ratios", "needs at least one aspect ratio"));
         }
         let d = &self.detection;
-        if !((0.0..=1.0).contains(&d.score_threshold) && (0.0..=1.0).contains(&d.nms_iou)) {
-            return Err("detection thresholds must lie in 0..1".into());
+        for (field, value) in [("detection.score_threshold", d.score_threshold), ("detection.nms_iou", d.nms_iou)] {
+            if !(0.0..=1.0).contains(&value) {
+                return Err(InvalidSetting::field(field, format!("{value} outside [0, 1]")));
+            }
         }
         // Every size a config can set is bounded: a checkpoint's config.json
         // that asks for 10^9 hidden units is an error, not an allocation abort.
@@ -263,11 +277,11 @@ impl DetectorConfig {
             ("roi.batch_size_per_image", p.batch_size_per_image, 1 << 16),
             ("detection.max_detections", d.max_detections, 1 << 16),
         ];
-        if let Some((name, value, max)) = sizes.iter().find(|(_, v, max)| v > max) {
-            return Err(format!("{name} {value} is larger than {max}"));
+        if let Some((field, value, max)) = sizes.iter().find(|(_, v, max)| v > max) {
+            return Err(InvalidSetting::field(*field, format!("{value} is larger than {max}")));
         }
         if p.pool_size == 0 {
-            return Err("roi.pool_size must be at least 1".into());
+            return Err(InvalidSetting::field("roi.pool_size", "must be at least 1"));
         }
         Ok(())
     }
@@ -291,12 +305,15 @@ mod tests {
         assert_eq!(good.validate(), Ok(()));
         let mut huge = good.clone();
         huge.hidden = 1_000_000_000;
-        assert_eq!(huge.validate(), Err("hidden 1000000000 is larger than 65536".into()));
+        assert_eq!(huge.validate(), Err(InvalidSetting::field("hidden", "1000000000 is larger than 65536")));
         let mut huge = good.clone();
         huge.roi.pool_size = 1 << 20;
-        assert!(huge.validate().unwrap_err().starts_with("roi.pool_size"));
+        assert_eq!(huge.validate().unwrap_err().field, "roi.pool_size");
+        let mut bad = good.clone();
+        bad.preprocess.canny_low = f32::NAN;
+        assert_eq!(bad.validate().unwrap_err().field, "preprocess.canny_low");
         let mut huge = good;
         huge.detection.max_detections = usize::MAX;
-        assert!(huge.validate().unwrap_err().starts_with("detection.max_detections"));
+        assert_eq!(huge.validate().unwrap_err().field, "detection.max_detections");
     }
 }

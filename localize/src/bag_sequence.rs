@@ -240,7 +240,7 @@ fn in_order(recording: &Recording, m: &RawMessage<'_>, previous: Option<f64>, st
 
 impl BagSequence {
     pub fn open(path: &Path, options: &BagOptions, sync: &SyncConfig) -> Result<Self> {
-        sync.validate().map_err(LocalizeError::Config)?;
+        sync.validate().map_err(|e| e.within("sync"))?;
         let recording = Recording::open(path)?;
         let (roles, mut notes) = find_roles(&recording, options)?;
         let pass = Self::first_pass(&recording, &roles)?;

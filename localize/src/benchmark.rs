@@ -11,6 +11,7 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
+use datasets::InvalidSetting;
 use datasets::formats::read_trajectory;
 use datasets::generate::{DatagenConfig, generate};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -55,24 +56,31 @@ impl BenchmarkPlan {
         Self { buildings: vec![1, 2], speeds_mps: vec![1.0], max_scans: 150, detection_images: 16, seed: 7 }
     }
 
-    pub fn validate(&self) -> std::result::Result<(), String> {
-        if self.buildings.is_empty() || self.speeds_mps.is_empty() {
-            return Err("at least one building and one speed".into());
+    pub fn validate(&self) -> std::result::Result<(), InvalidSetting> {
+        if self.buildings.is_empty() {
+            return Err(InvalidSetting::field("buildings", "needs at least one building"));
+        }
+        if self.speeds_mps.is_empty() {
+            return Err(InvalidSetting::field("speeds_mps", "needs at least one speed"));
         }
         if let Some(b) = self.buildings.iter().find(|&&b| b > datasets::world::building::MAX_BUILDING) {
-            return Err(format!(
+            let problem = format!(
                 "building {b} is neither the paper's (0) nor a generated one (1..={})",
                 datasets::world::building::MAX_BUILDING
-            ));
+            );
+            return Err(InvalidSetting::field("buildings", problem));
         }
-        if let Some(s) = self.speeds_mps.iter().find(|s| !(s.is_finite() && **s >= 0.05 && **s <= 1.5)) {
-            return Err(format!("speed {s} m/s outside 0.05..1.5"));
+        if let Some(s) = self.speeds_mps.iter().find(|s| !(**s >= 0.05 && **s <= 1.5)) {
+            return Err(InvalidSetting::field("speeds_mps", format!("{s} m/s outside [0.05, 1.5]")));
         }
         if !(10..=3000).contains(&self.max_scans) {
-            return Err(format!("max scans {} outside 10..3000", self.max_scans));
+            return Err(InvalidSetting::field("max_scans", format!("{} outside 10..=3000", self.max_scans)));
         }
         if self.detection_images > 2000 {
-            return Err(format!("{} detection images is more than 2000", self.detection_images));
+            return Err(InvalidSetting::field(
+                "detection_images",
+                format!("{} is more than 2000", self.detection_images),
+            ));
         }
         Ok(())
     }
@@ -125,7 +133,7 @@ pub fn run_benchmark(
     config: &LocalizeConfig,
     show_progress: bool,
 ) -> Result<Vec<BenchmarkRow>> {
-    plan.validate().map_err(LocalizeError::Config)?;
+    plan.validate()?;
     let cases: Vec<(u32, f64, bool)> = plan
         .buildings
         .iter()
@@ -137,8 +145,7 @@ pub fn run_benchmark(
             .expect("static template"),
     );
     let mut source = CornerSource::detector(checkpoint, device.clone(), config.fusion.min_score)?;
-    let detector = infer::detector::Detector::load(checkpoint, device)
-        .map_err(|e| LocalizeError::Detector { path: checkpoint.to_path_buf(), message: e.to_string() })?;
+    let detector = infer::detector::Detector::load(checkpoint, device)?;
     let mut rows = Vec::new();
     for (building, speed, first) in cases {
         let dir = sequence_dir(out, building, speed);
@@ -149,8 +156,9 @@ pub fn run_benchmark(
         bar.set_message(format!("building {building} at {speed} m/s: localizing"));
         let sequence = RecordedSequence::open_with(&dir.join("sequence"), &config.sync)?;
         let result = run_sequence(&sequence, &mut source, config, false)?;
-        let measured = metrics(&sequence, &result)?.ok_or_else(|| {
-            LocalizeError::Config(format!("{}: the ground truth does not overlap the run", dir.display()))
+        let measured = metrics(&sequence, &result)?.ok_or_else(|| LocalizeError::Sequence {
+            path: dir.clone(),
+            message: "the ground truth does not overlap the run".into(),
         })?;
         write_outputs(&dir.join("run"), config, &result, sequence_truth(&sequence), Some(&measured))?;
         bar.inc(1);
@@ -207,7 +215,7 @@ fn peer_errors(path: &Path, truth: &datasets::formats::Trajectory) -> Result<Err
     let (estimate, _) = read_trajectory(path)?;
     estimate.check_increasing(path)?;
     let comparison = compare(truth, &estimate, Alignment::None, 0.01)
-        .map_err(|e| LocalizeError::Config(format!("{}: {e}", path.display())))?;
+        .map_err(|source| LocalizeError::Compare { path: path.to_path_buf(), source })?;
     Ok(comparison.summary)
 }
 

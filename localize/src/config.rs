@@ -2,6 +2,7 @@
 //! --config FILE` reads it as JSON (missing fields keep their defaults) and
 //! the run folder keeps the resolved copy.
 
+use datasets::InvalidSetting;
 use serde::{Deserialize, Serialize};
 
 use crate::corners::CornerConfig;
@@ -36,19 +37,23 @@ const MAX_COUNT: usize = 10_000_000;
 impl LocalizeConfig {
     /// Checks every setting against the range where it means something; the
     /// message names the section and field (`normals.neighbours`).
-    pub fn validate(&self) -> Result<(), String> {
-        let range = |name: &str, v: f64, lo: f64, hi: f64, lo_open: bool| -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
+        let range = |name: &str, v: f64, lo: f64, hi: f64, lo_open: bool| -> Result<(), InvalidSetting> {
             let above = if lo_open { v > lo } else { v >= lo };
             if v.is_finite() && above && v <= hi {
                 Ok(())
             } else {
-                Err(format!("{name} {v} outside {}{lo}, {hi}]", if lo_open { "(" } else { "[" }))
+                Err(InvalidSetting::field(name, format!("{v} outside {}{lo}, {hi}]", if lo_open { "(" } else { "[" })))
             }
         };
         let positive = |name: &str, v: f64, hi: f64| range(name, v, 0.0, hi, true);
         let non_negative = |name: &str, v: f64, hi: f64| range(name, v, 0.0, hi, false);
-        let count = |name: &str, v: usize, lo: usize, hi: usize| -> Result<(), String> {
-            if (lo..=hi).contains(&v) { Ok(()) } else { Err(format!("{name} {v} outside {lo}..={hi}")) }
+        let count = |name: &str, v: usize, lo: usize, hi: usize| -> Result<(), InvalidSetting> {
+            if (lo..=hi).contains(&v) {
+                Ok(())
+            } else {
+                Err(InvalidSetting::field(name, format!("{v} outside {lo}..={hi}")))
+            }
         };
         non_negative("voxel.size_m", self.voxel.size_m, 5.0)?;
         count("normals.neighbours", self.normals.neighbours, 3, 1000)?;
@@ -113,7 +118,7 @@ impl LocalizeConfig {
         ] {
             non_negative(name, v, 1000.0)?;
         }
-        self.sync.validate().map_err(|m| format!("sync: {m}"))
+        self.sync.validate().map_err(|e| e.within("sync"))
     }
 }
 
@@ -129,12 +134,14 @@ mod tests {
             f(&mut c);
             c.validate().unwrap_err()
         };
-        assert!(with(&|c| c.normals.neighbours = 100_000).contains("normals.neighbours 100000"));
-        assert!(with(&|c| c.pose.huber = f64::NAN).contains("pose.huber NaN"));
-        assert!(with(&|c| c.voxel.size_m = -0.1).contains("voxel.size_m"));
-        assert!(with(&|c| c.fusion.min_score = 1.5).contains("fusion.min_score"));
-        assert!(with(&|c| c.corners.edge_max_angle_deg = 1.0).contains("corners.edge_max_angle_deg"));
-        assert!(with(&|c| c.ekf.bias_walk = f64::INFINITY).contains("ekf.bias_walk"));
-        assert!(with(&|c| c.sync.image_tolerance_s = -1.0).starts_with("sync:"));
+        let many = with(&|c| c.normals.neighbours = 100_000);
+        assert_eq!(many.to_string(), "normals.neighbours: 100000 outside 3..=1000");
+        let nan = with(&|c| c.pose.huber = f64::NAN);
+        assert_eq!((nan.field.as_str(), nan.problem.starts_with("NaN")), ("pose.huber", true));
+        assert_eq!(with(&|c| c.voxel.size_m = -0.1).field, "voxel.size_m");
+        assert_eq!(with(&|c| c.fusion.min_score = 1.5).field, "fusion.min_score");
+        assert_eq!(with(&|c| c.corners.edge_max_angle_deg = 1.0).field, "corners.edge_max_angle_deg");
+        assert_eq!(with(&|c| c.ekf.bias_walk = f64::INFINITY).field, "ekf.bias_walk");
+        assert_eq!(with(&|c| c.sync.image_tolerance_s = -1.0).field, "sync.image_tolerance_s");
     }
 }

@@ -6,12 +6,13 @@ use std::collections::HashMap;
 use std::path::Path;
 use std::time::Instant;
 
+use datasets::InvalidSetting;
 use image::DynamicImage;
 use infer::detector::Detector;
 use rand::rngs::ChaCha8Rng;
 use rand::{RngExt, SeedableRng};
 
-use crate::error::{LocalizeError, Result};
+use crate::error::Result;
 
 pub enum CornerSource {
     Detector { detector: Box<Detector>, min_score: f32 },
@@ -20,15 +21,15 @@ pub enum CornerSource {
 
 impl CornerSource {
     pub fn detector(checkpoint: &Path, device: burn::prelude::Device, min_score: f32) -> Result<Self> {
-        let detector = Detector::load(checkpoint, device)
-            .map_err(|e| LocalizeError::Detector { path: checkpoint.to_path_buf(), message: e.to_string() })?;
+        let detector = Detector::load(checkpoint, device)?;
         Ok(Self::Detector { detector: Box::new(detector), min_score })
     }
 
     /// Corner pixels from a COCO file with `point`s, by image file stem.
     pub fn labels(path: &Path, noise_px: f64, seed: u64) -> Result<Self> {
         if !(0.0..=1000.0).contains(&noise_px) {
-            return Err(LocalizeError::Config(format!("label noise must be 0 to 1000 px, got {noise_px}")));
+            let problem = format!("{noise_px} px outside [0, 1000]");
+            return Err(InvalidSetting::field("label_noise_px", problem).into());
         }
         let coco = datasets::formats::read_coco(path)?;
         let mut by_image: HashMap<String, Vec<[f64; 2]>> = HashMap::new();

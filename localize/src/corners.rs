@@ -2,12 +2,13 @@
 //! three planes have points near the solution) and edge lines where two
 //! planes meet at a shallow angle (a ramp and the floor).
 
+use datasets::InvalidSetting;
 use datasets::math::{Mat3, Vec3};
 use kiddo::SquaredEuclidean;
 use nalgebra::Point3;
 use serde::{Deserialize, Serialize};
 
-use crate::error::{LocalizeError, Result};
+use crate::error::Result;
 use crate::normals::PointTree;
 use crate::planes::{Plane, PlaneSet};
 
@@ -87,8 +88,13 @@ pub struct CornerExtractor {
 
 impl CornerExtractor {
     pub fn new(config: CornerConfig) -> Result<Self> {
-        if !(config.min_conditioning > 0.0 && config.min_conditioning <= 1.0 && config.support_radius_m > 0.0) {
-            return Err(LocalizeError::Config(format!("corners: inconsistent settings {config:?}")));
+        if !(config.min_conditioning > 0.0 && config.min_conditioning <= 1.0) {
+            let problem = format!("{} outside (0, 1]", config.min_conditioning);
+            return Err(InvalidSetting::field("corners.min_conditioning", problem).into());
+        }
+        if !(config.support_radius_m > 0.0) {
+            let problem = format!("{} m must be > 0", config.support_radius_m);
+            return Err(InvalidSetting::field("corners.support_radius_m", problem).into());
         }
         Ok(Self { config })
     }

@@ -1,5 +1,6 @@
 //! The error type of localization. Data-file problems keep the file name and
-//! line of the data layer's error; the others say which input or setting is wrong.
+//! line of the data layer's error, checkpoint problems the detector's error;
+//! the others say which input or setting is wrong.
 
 use std::path::PathBuf;
 
@@ -7,14 +8,26 @@ use std::path::PathBuf;
 pub enum LocalizeError {
     #[error(transparent)]
     Data(#[from] datasets::DataError),
+    /// A setting the stages cannot run with.
     #[error("invalid setting: {0}")]
-    Config(String),
+    Setting(#[from] datasets::InvalidSetting),
+    /// A recording with nothing to localize, or whose sensor logs do not
+    /// cover its scans.
+    #[error("{0}")]
+    Recording(String),
     #[error("point cloud: {0}")]
     Cloud(String),
     #[error("{path}: {message}")]
     Sequence { path: PathBuf, message: String },
-    #[error("detector checkpoint {path}: {message}")]
-    Detector { path: PathBuf, message: String },
+    #[error(transparent)]
+    Detector(#[from] infer::checkpoint::CheckpointError),
+    /// A trajectory that cannot be compared with its reference.
+    #[error("{path}: {source}")]
+    Compare {
+        path: PathBuf,
+        #[source]
+        source: crate::eval::EvalError,
+    },
 }
 
 pub type Result<T, E = LocalizeError> = std::result::Result<T, E>;

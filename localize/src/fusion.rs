@@ -6,12 +6,13 @@
 //! planes that pass by the hit point: the detector says where to look, the
 //! planes say exactly where the corner is.
 
+use datasets::InvalidSetting;
 use datasets::camera::PinholeCamera;
 use datasets::math::{Pose3, Vec3};
 use serde::{Deserialize, Serialize};
 
 use crate::corners::{CornerSet, intersect_three};
-use crate::error::{LocalizeError, Result};
+use crate::error::Result;
 use crate::planes::PlaneSet;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -52,8 +53,10 @@ pub struct CornerFusion {
 
 impl CornerFusion {
     pub fn new(config: FusionConfig) -> Result<Self> {
-        if !(config.gate_m > 0.0 && config.surface_radius_m > 0.0) {
-            return Err(LocalizeError::Config(format!("fusion: gate and surface radius must be > 0: {config:?}")));
+        for (field, value) in [("fusion.gate_m", config.gate_m), ("fusion.surface_radius_m", config.surface_radius_m)] {
+            if !(value > 0.0) {
+                return Err(InvalidSetting::field(field, format!("{value} m must be > 0")).into());
+            }
         }
         Ok(Self { config })
     }

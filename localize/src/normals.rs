@@ -4,6 +4,7 @@
 
 use std::num::NonZero;
 
+use datasets::InvalidSetting;
 use datasets::math::{Mat3, Vec3};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::Point3;
@@ -52,7 +53,8 @@ pub fn build_tree(points: &[Point3<f32>]) -> PointTree {
 impl NormalEstimator {
     pub fn new(config: NormalConfig) -> Result<Self> {
         if config.neighbours < 3 {
-            return Err(LocalizeError::Config(format!("normals: neighbours {} < 3", config.neighbours)));
+            let problem = format!("{} is fewer than the 3 a plane needs", config.neighbours);
+            return Err(InvalidSetting::field("normals.neighbours", problem).into());
         }
         Ok(Self { config })
     }

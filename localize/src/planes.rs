@@ -8,13 +8,14 @@
 //! the same solid angle. A plain theta x phi grid would spread the floor's
 //! votes (phi near 0, theta undefined) over a whole row of cells.
 
+use datasets::InvalidSetting;
 use datasets::math::{Mat3, Vec3};
 use nalgebra::Point3;
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 use serde::{Deserialize, Serialize};
 
-use crate::error::{LocalizeError, Result};
+use crate::error::Result;
 use crate::normals::{PointNormal, smallest_eigenvector};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -58,16 +59,29 @@ impl Default for PlaneConfig {
 }
 
 impl PlaneConfig {
-    pub fn validate(&self) -> Result<()> {
-        let ok = self.angle_bin_deg > 0.05
-            && self.angle_bin_deg <= 30.0
-            && self.distance_bin_m > 0.0
-            && self.inlier_distance_m > 0.0
-            && self.inlier_angle_deg > 0.0
-            && self.inlier_angle_deg < 90.0
-            && self.min_votes > 0
-            && self.min_inliers >= 3;
-        if ok { Ok(()) } else { Err(LocalizeError::Config(format!("planes: inconsistent settings {self:?}"))) }
+    /// The extractor's own limits (stricter than [`crate::config::LocalizeConfig::validate`]'s
+    /// ranges for the histogram bin).
+    pub fn validate(&self) -> std::result::Result<(), InvalidSetting> {
+        let field = |name: &str, problem: String| Err(InvalidSetting::field(format!("planes.{name}"), problem));
+        if !(self.angle_bin_deg > 0.05 && self.angle_bin_deg <= 30.0) {
+            return field("angle_bin_deg", format!("{} deg outside (0.05, 30]", self.angle_bin_deg));
+        }
+        if !(self.distance_bin_m > 0.0) {
+            return field("distance_bin_m", format!("{} m must be > 0", self.distance_bin_m));
+        }
+        if !(self.inlier_distance_m > 0.0) {
+            return field("inlier_distance_m", format!("{} m must be > 0", self.inlier_distance_m));
+        }
+        if !(self.inlier_angle_deg > 0.0 && self.inlier_angle_deg < 90.0) {
+            return field("inlier_angle_deg", format!("{} deg outside (0, 90)", self.inlier_angle_deg));
+        }
+        if self.min_votes == 0 {
+            return field("min_votes", "must be at least 1".into());
+        }
+        if self.min_inliers < 3 {
+            return field("min_inliers", format!("{} is fewer than the 3 a plane needs", self.min_inliers));
+        }
+        Ok(())
     }
 }
 

@@ -38,12 +38,12 @@ pub fn run_sequence(
     config: &LocalizeConfig,
     show_progress: bool,
 ) -> Result<RunResult> {
-    config.validate().map_err(|m| crate::error::LocalizeError::Config(format!("invalid settings: {m}")))?;
+    config.validate()?;
     let calibration = sequence.calibration().clone();
     let mut localizer = Localizer::new(config, calibration.clone())?;
     let stamps = sequence.frame_stamps();
     let Some(&start_time) = stamps.first() else {
-        return Err(crate::error::LocalizeError::Config("the recording has no LIDAR scans".into()));
+        return Err(crate::error::LocalizeError::Recording("the recording has no LIDAR scans".into()));
     };
     check_logs_cover(&stamps, sequence)?;
     // The world frame is the robot's pose at the first frame.
@@ -139,7 +139,7 @@ fn check_logs_cover(stamps: &[f64], sequence: &dyn SensorSequence) -> Result<()>
     ];
     for (name, first, last) in spans {
         let (Some(first), Some(last)) = (first, last) else {
-            return Err(crate::error::LocalizeError::Config(format!("the {name} log is empty")));
+            return Err(crate::error::LocalizeError::Recording(format!("the {name} log is empty")));
         };
         let outside: Vec<f64> = stamps
             .iter()
@@ -147,7 +147,7 @@ fn check_logs_cover(stamps: &[f64], sequence: &dyn SensorSequence) -> Result<()>
             .filter(|&t| t > last + MAX_OUTSIDE_LOGS_S || t < first - MAX_OUTSIDE_LOGS_S)
             .collect();
         if let Some(t) = outside.first() {
-            return Err(crate::error::LocalizeError::Config(format!(
+            return Err(crate::error::LocalizeError::Recording(format!(
                 "{} scans lie more than {MAX_OUTSIDE_LOGS_S} s outside the {name} log ({first:.6} to {last:.6} s), the first at {t:.6} s",
                 outside.len()
             )));

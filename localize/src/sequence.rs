@@ -12,6 +12,7 @@
 
 use std::path::{Path, PathBuf};
 
+use datasets::InvalidSetting;
 use datasets::formats::{
     CLOUD_EXTENSIONS, Calibration, IMAGE_EXTENSIONS, ImuSample, NonFinite, OdometrySample, PointCloud, Trajectory,
     read_calibration, read_cloud, read_imu, read_odometry, read_tum, stamped_files,
@@ -43,9 +44,12 @@ impl Default for SyncConfig {
 }
 
 impl SyncConfig {
-    pub fn validate(&self) -> std::result::Result<(), String> {
+    pub fn validate(&self) -> std::result::Result<(), InvalidSetting> {
         if !(0.0..=10.0).contains(&self.image_tolerance_s) {
-            return Err(format!("sync.image_tolerance_s must be in [0, 10] s, got {}", self.image_tolerance_s));
+            return Err(InvalidSetting::field(
+                "image_tolerance_s",
+                format!("{} s outside [0, 10]", self.image_tolerance_s),
+            ));
         }
         Ok(())
     }
@@ -139,7 +143,7 @@ impl RecordedSequence {
         if !dir.is_dir() {
             return Err(error(dir, "not a folder"));
         }
-        sync.validate().map_err(LocalizeError::Config)?;
+        sync.validate().map_err(|e| e.within("sync"))?;
         let calibration = read_calibration(&dir.join("calib.json"))?;
         let odometry = read_odometry(&dir.join("odom.csv"))?;
         let imu = read_imu(&dir.join("imu.csv"))?;

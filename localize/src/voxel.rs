@@ -2,11 +2,12 @@
 //! dense scan has far more points than planes need; thinning it first makes
 //! the normals, the slowest stage, proportionally cheaper.
 
+use datasets::InvalidSetting;
 use nalgebra::Point3;
 use rustc_hash::FxHashMap;
 use serde::{Deserialize, Serialize};
 
-use crate::error::{LocalizeError, Result};
+use crate::error::Result;
 
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -23,7 +24,8 @@ pub struct VoxelFilter {
 impl VoxelFilter {
     pub fn new(config: VoxelConfig) -> Result<Self> {
         if !(config.size_m >= 0.0 && config.size_m.is_finite()) {
-            return Err(LocalizeError::Config(format!("voxel: size {} m must be >= 0", config.size_m)));
+            let problem = format!("{} m must be finite and >= 0", config.size_m);
+            return Err(InvalidSetting::field("voxel.size_m", problem).into());
         }
         Ok(Self { config })
     }

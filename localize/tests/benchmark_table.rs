@@ -25,9 +25,11 @@ fn plans_outside_the_supported_ranges_are_refused() {
         f(&mut plan);
         plan.validate()
     };
-    assert!(with(&|p| p.buildings = vec![2_000_000]).unwrap_err().contains("building 2000000"));
+    let far = with(&|p| p.buildings = vec![2_000_000]).unwrap_err();
+    assert!(far.field == "buildings" && far.problem.contains("building 2000000"), "{far}");
     assert!(with(&|p| p.buildings = vec![0]).is_ok(), "the paper's building runs beside the generated ones");
-    assert!(with(&|p| p.speeds_mps = vec![f64::NAN]).unwrap_err().contains("NaN"));
+    let nan = with(&|p| p.speeds_mps = vec![f64::NAN]).unwrap_err();
+    assert!(nan.field == "speeds_mps" && nan.problem.contains("NaN"), "{nan}");
     assert!(with(&|p| p.speeds_mps = vec![3.0]).is_err());
     assert!(with(&|p| p.max_scans = 5).is_err());
     assert!(with(&|p| p.buildings.clear()).is_err());

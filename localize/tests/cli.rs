@@ -219,7 +219,9 @@ fn absurd_settings_in_a_config_file_are_named_before_anything_runs() {
     ]);
     let message = String::from_utf8_lossy(&out.stderr);
     assert!(
-        !out.status.success() && message.contains("settings.json") && message.contains("normals.neighbours 100000"),
+        !out.status.success()
+            && message.contains("settings.json")
+            && message.contains("normals.neighbours: 100000 outside"),
         "{message}"
     );
     assert!(!dir.path().join("out").exists());

@@ -190,7 +190,7 @@ fn empty_logs_every_cloud_broken_and_scans_past_the_logs_are_errors() {
 
     for noise in [f64::NAN, -1.0] {
         let e = CornerSource::labels(&dir.path().join("labels.json"), noise, 1).err().unwrap().to_string();
-        assert!(e.contains("label noise must be 0 to 1000 px"), "{e}");
+        assert!(e.contains("label_noise_px: ") && e.contains("px outside [0, 1000]"), "{e}");
     }
 }
 

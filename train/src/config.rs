@@ -3,6 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
+use datasets::InvalidSetting;
 use infer::backend::CpuBackend;
 use infer::config::{Backbone, DetectorConfig};
 use infer::pretrained::InputConvention;
@@ -132,29 +133,36 @@ impl TrainConfig {
         self.start = start;
     }
 
-    pub fn validate(&self) -> Result<(), String> {
-        self.detector.validate()?;
-        if self.epochs == 0 || self.batch_size == 0 {
-            return Err("epochs and batch size must be at least 1".into());
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
+        self.detector.validate().map_err(|e| e.within("detector"))?;
+        if self.epochs == 0 {
+            return Err(InvalidSetting::field("epochs", "must be at least 1"));
         }
-        if !(self.lr.is_finite() && self.lr > 0.0 && self.lr < 1.0) {
-            return Err(format!("learning rate {} outside (0, 1)", self.lr));
+        if self.batch_size == 0 {
+            return Err(InvalidSetting::field("batch_size", "must be at least 1"));
+        }
+        if !(self.lr > 0.0 && self.lr < 1.0) {
+            return Err(InvalidSetting::field("lr", format!("{} outside (0, 1)", self.lr)));
         }
         if !(self.weight_decay.is_finite() && self.weight_decay >= 0.0) {
-            return Err(format!("weight decay {} must be >= 0", self.weight_decay));
+            return Err(InvalidSetting::field(
+                "weight_decay",
+                format!("{} must be finite and >= 0", self.weight_decay),
+            ));
         }
         let convs = self.detector.backbone.trunk_convs();
         if self.freeze > convs {
-            return Err(format!(
-                "--freeze {} but the {} trunk has {convs} convolutions",
-                self.freeze, self.detector.backbone
-            ));
+            let problem = format!("{} but the {} trunk has {convs} convolutions", self.freeze, self.detector.backbone);
+            return Err(InvalidSetting::field("freeze", problem));
         }
         if self.pretrained_prune && matches!(self.start, Start::Detector(_)) {
-            return Err("pruning applies to trunk files, not to a checkpoint folder".into());
+            return Err(InvalidSetting::field(
+                "pretrained_prune",
+                "applies to trunk files, not to a checkpoint folder",
+            ));
         }
         if !(0.0..0.9).contains(&self.val_fraction) {
-            return Err(format!("validation fraction {} outside [0, 0.9)", self.val_fraction));
+            return Err(InvalidSetting::field("val_fraction", format!("{} outside [0, 0.9)", self.val_fraction)));
         }
         Ok(())
     }

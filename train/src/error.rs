@@ -9,9 +9,9 @@ use infer::pretrained::PretrainedError;
 
 #[derive(Debug, thiserror::Error)]
 pub enum TrainError {
-    /// Settings that cannot train; the message names the field.
-    #[error("invalid settings: {0}")]
-    Settings(String),
+    /// Settings that cannot train.
+    #[error("invalid setting: {0}")]
+    Settings(#[from] datasets::InvalidSetting),
     /// A run or data folder that is not what the command needs.
     #[error("{}: {what}", path.display())]
     Folder { path: PathBuf, what: String },

@@ -86,8 +86,11 @@ fn run_main() -> Result<()> {
     if let Some(train) = args.train {
         config.detection.train = train;
     }
-    if let Err(message) = config.validate() {
-        bail!("invalid settings: {message}");
+    if let Err(invalid) = config.validate() {
+        match &args.config {
+            Some(path) => bail!("invalid settings (from {} and the flags): {invalid}", path.display()),
+            None => bail!("invalid settings: {invalid}"),
+        }
     }
     if args.out.exists() && !args.out.is_dir() {
         bail!("--out {}: exists and is not a folder", args.out.display());

@@ -51,7 +51,7 @@ pub fn read_calibration(path: &Path) -> Result<Calibration> {
 /// A calibration from the text of `path`.
 pub fn parse_calibration(path: &Path, text: &str) -> Result<Calibration> {
     let file: CalibFile = serde_json::from_str(text).map_err(|e| DataError::json(path, e))?;
-    file.camera.validate().map_err(|m| DataError::invalid(path, format!("camera: {m}")))?;
+    file.camera.validate().map_err(|e| DataError::setting(path, e.within("camera")))?;
     let pose = |rows: &RowsMat4, name: &str| {
         pose_from_rows(rows).ok_or_else(|| {
             DataError::invalid(

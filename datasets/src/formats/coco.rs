@@ -65,16 +65,20 @@ impl CocoDataset {
         self.annotations.iter().filter(move |a| a.image_id == image_id)
     }
 
-    /// Checks ids and boxes; the message names the first offending entry.
-    pub fn validate(&self) -> Result<(), String> {
+    /// Checks ids and boxes; the error names `path` and the first offending entry.
+    pub fn validate(&self, path: &Path) -> Result<()> {
+        let invalid = |message: String| Err(DataError::invalid(path, message));
         let mut images = HashSet::new();
         let mut sizes = std::collections::HashMap::new();
         for im in &self.images {
             if !images.insert(im.id) {
-                return Err(format!("duplicate image id {}", im.id));
+                return invalid(format!("duplicate image id {}", im.id));
             }
             if im.width == 0 || im.height == 0 {
-                return Err(format!("image {} ({}) has a zero size {}x{}", im.id, im.file_name, im.width, im.height));
+                return invalid(format!(
+                    "image {} ({}) has a zero size {}x{}",
+                    im.id, im.file_name, im.width, im.height
+                ));
             }
             sizes.insert(im.id, (im.width as f32, im.height as f32));
         }
@@ -82,25 +86,25 @@ impl CocoDataset {
         let mut ids = HashSet::new();
         for a in &self.annotations {
             if !ids.insert(a.id) {
-                return Err(format!("duplicate annotation id {}", a.id));
+                return invalid(format!("duplicate annotation id {}", a.id));
             }
             if !images.contains(&a.image_id) {
-                return Err(format!("annotation {} refers to unknown image {}", a.id, a.image_id));
+                return invalid(format!("annotation {} refers to unknown image {}", a.id, a.image_id));
             }
             if !categories.contains(&a.category_id) {
-                return Err(format!("annotation {} refers to unknown category {}", a.id, a.category_id));
+                return invalid(format!("annotation {} refers to unknown category {}", a.id, a.category_id));
             }
             let [x, y, w, h] = a.bbox;
             if !a.bbox().is_finite() || w < 0.0 || h < 0.0 {
-                return Err(format!("annotation {} has an invalid bbox {:?}", a.id, a.bbox));
+                return invalid(format!("annotation {} has an invalid bbox {:?}", a.id, a.bbox));
             }
             if w == 0.0 || h == 0.0 {
-                return Err(format!("annotation {} has a zero-size bbox {:?}", a.id, a.bbox));
+                return invalid(format!("annotation {} has a zero-size bbox {:?}", a.id, a.bbox));
             }
             // A pixel of slack for tools that round outwards.
             let (width, height) = sizes[&a.image_id];
             if x < -1.0 || y < -1.0 || x + w > width + 1.0 || y + h > height + 1.0 {
-                return Err(format!(
+                return invalid(format!(
                     "annotation {} has a bbox {:?} outside its {width}x{height} image {}",
                     a.id, a.bbox, a.image_id
                 ));
@@ -117,7 +121,7 @@ pub fn read_coco(path: &Path) -> Result<CocoDataset> {
 /// A validated COCO set from the text of `path`.
 pub fn parse_coco(path: &Path, text: &str) -> Result<CocoDataset> {
     let data: CocoDataset = serde_json::from_str(text).map_err(|e| DataError::json(path, e))?;
-    data.validate().map_err(|m| DataError::invalid(path, m))?;
+    data.validate(path)?;
     Ok(data)
 }
 

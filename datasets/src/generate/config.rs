@@ -3,6 +3,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::InvalidSetting;
 use crate::preprocess::PreprocessConfig;
 use crate::world::WorldConfig;
 use crate::world::labels::LabelConfig;
@@ -119,46 +120,54 @@ impl DatagenConfig {
 
 impl DatagenConfig {
     /// Checks every section; the message names the offending field.
-    pub fn validate(&self) -> Result<(), String> {
-        self.world.validate().map_err(|m| format!("world: {m}"))?;
-        self.labels.validate().map_err(|m| format!("labels: {m}"))?;
-        self.lidar.validate().map_err(|m| format!("lidar: {m}"))?;
-        self.motion.validate().map_err(|m| format!("motion: {m}"))?;
-        self.preprocess.validate().map_err(|m| format!("preprocess: {m}"))?;
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
+        self.world.validate().map_err(|e| e.within("world"))?;
+        self.labels.validate().map_err(|e| e.within("labels"))?;
+        self.lidar.validate().map_err(|e| e.within("lidar"))?;
+        self.motion.validate().map_err(|e| e.within("motion"))?;
+        self.preprocess.validate().map_err(|e| e.within("preprocess"))?;
         let d = &self.detection;
         if d.train > d.images {
-            return Err(format!("detection: train split {} is larger than the {} images", d.train, d.images));
+            let problem = format!("{} is larger than the {} images", d.train, d.images);
+            return Err(InvalidSetting::field("detection.train", problem));
         }
         let s = &self.sequence;
-        if !(s.speed_mps.is_finite() && s.speed_mps > 0.0 && s.speed_mps <= 5.0) {
-            return Err(format!("sequence: speed {} m/s outside (0, 5]", s.speed_mps));
+        if !(s.speed_mps > 0.0 && s.speed_mps <= 5.0) {
+            return Err(InvalidSetting::field("sequence.speed_mps", format!("{} m/s outside (0, 5]", s.speed_mps)));
         }
-        if !(s.rate_hz.is_finite() && s.rate_hz > 0.0 && s.rate_hz <= 100.0) {
-            return Err(format!("sequence: rate {} Hz outside (0, 100]", s.rate_hz));
+        if !(s.rate_hz > 0.0 && s.rate_hz <= 100.0) {
+            return Err(InvalidSetting::field("sequence.rate_hz", format!("{} Hz outside (0, 100]", s.rate_hz)));
         }
         if s.frames == Some(0) {
-            return Err("sequence: frames must be at least 1".into());
+            return Err(InvalidSetting::field("sequence.frames", "must be at least 1"));
         }
         if s.max_scans == Some(0) {
-            return Err("sequence: max scans must be at least 1".into());
+            return Err(InvalidSetting::field("sequence.max_scans", "must be at least 1"));
         }
         if let Some(rate) = s.camera_rate_hz
-            && !(rate.is_finite() && rate > 0.0 && rate <= 100.0)
+            && !(rate > 0.0 && rate <= 100.0)
         {
-            return Err(format!("sequence: camera rate {rate} Hz outside (0, 100]"));
+            return Err(InvalidSetting::field("sequence.camera_rate_hz", format!("{rate} Hz outside (0, 100]")));
         }
         if self.lidar.sweep_period_s > 1.0 / s.rate_hz + 1e-9 {
-            return Err(format!(
-                "lidar: a sweep of {} s is longer than the {} s between scans",
+            let problem = format!(
+                "a sweep of {} s is longer than the {} s between scans (sequence.rate_hz)",
                 self.lidar.sweep_period_s,
                 1.0 / s.rate_hz
-            ));
+            );
+            return Err(InvalidSetting::field("lidar.sweep_period_s", problem));
         }
         if !(s.camera_delay_s.abs() <= 1.0) {
-            return Err(format!("sequence: camera delay {} s outside [-1, 1]", s.camera_delay_s));
+            return Err(InvalidSetting::field(
+                "sequence.camera_delay_s",
+                format!("{} s outside [-1, 1]", s.camera_delay_s),
+            ));
         }
         if !(s.turn_radius_m > 0.1 && s.turn_radius_m < 3.0) {
-            return Err(format!("sequence: turn radius {} m outside (0.1, 3)", s.turn_radius_m));
+            return Err(InvalidSetting::field(
+                "sequence.turn_radius_m",
+                format!("{} m outside (0.1, 3)", s.turn_radius_m),
+            ));
         }
         Ok(())
     }

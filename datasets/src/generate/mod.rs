@@ -67,7 +67,7 @@ pub(crate) fn progress(len: usize, what: &str) -> ProgressBar {
 /// Generates the detection data set into `out/detection` and the sequence
 /// into `out/sequence`, and previews into `out/preview`.
 pub fn generate(out: &Path, config: &DatagenConfig) -> Result<Summary> {
-    config.validate().map_err(|m| DataError::invalid(out, format!("invalid configuration: {m}")))?;
+    config.validate().map_err(|e| DataError::setting(out, e))?;
     let world = World::new(&config.world, key(config.seed, stream::APPEARANCE, 0));
     let rig = Rig::default();
     // The folder is one run: an earlier run's parts go first (a longer

@@ -6,6 +6,7 @@ use serde::{Deserialize, Serialize};
 
 use super::World;
 use super::layout::CornerKind;
+use crate::InvalidSetting;
 use crate::bbox::BBox;
 use crate::camera::PinholeCamera;
 use crate::math::{Point3, Pose3};
@@ -29,12 +30,12 @@ impl Default for LabelConfig {
 }
 
 impl LabelConfig {
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
         if !(self.box_size_px >= 4.0 && self.box_size_px <= 256.0) {
-            return Err(format!("box size {} px outside 4..256", self.box_size_px));
+            return Err(InvalidSetting::field("box_size_px", format!("{} px outside [4, 256]", self.box_size_px)));
         }
         if !(self.max_depth_m > 0.5) {
-            return Err(format!("max depth {} m must exceed 0.5 m", self.max_depth_m));
+            return Err(InvalidSetting::field("max_depth_m", format!("{} m must exceed 0.5 m", self.max_depth_m)));
         }
         Ok(())
     }

@@ -12,6 +12,7 @@ use serde::{Deserialize, Serialize};
 use super::block::Block;
 use super::people::Walker;
 use super::surface::{Material, Pattern, Surface, SurfaceKind};
+use crate::InvalidSetting;
 use crate::math::{Point3, Vec3};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -43,22 +44,32 @@ impl Default for WorldConfig {
 }
 
 impl WorldConfig {
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
         if self.building > super::building::MAX_BUILDING {
-            return Err(format!("building {} outside 0..={}", self.building, super::building::MAX_BUILDING));
+            let problem = format!("{} outside 0..={}", self.building, super::building::MAX_BUILDING);
+            return Err(InvalidSetting::field("building", problem));
         }
         let [h0, h1, h2] = self.level_heights_m;
         if !(h0.is_finite() && h1 > h0 + 0.05 && h2 > h1 + 0.05) {
-            return Err(format!("level heights must rise by at least 5 cm each: {:?}", self.level_heights_m));
+            let problem = format!("{:?} must rise by at least 5 cm each", self.level_heights_m);
+            return Err(InvalidSetting::field("level_heights_m", problem));
         }
         if !(1.0..=30.0).contains(&self.ramp_slope_deg) {
-            return Err(format!("ramp slope {} deg is outside 1..30 deg", self.ramp_slope_deg));
+            return Err(InvalidSetting::field(
+                "ramp_slope_deg",
+                format!("{} deg outside [1, 30]", self.ramp_slope_deg),
+            ));
         }
         if !(self.ceiling_height_m > h2 + 1.5 && self.ceiling_height_m < 20.0) {
-            return Err(format!("ceiling at {} m leaves less than 1.5 m above level 3", self.ceiling_height_m));
+            let problem =
+                format!("{} m must be below 20 m and leave 1.5 m above level 3 ({h2} m)", self.ceiling_height_m);
+            return Err(InvalidSetting::field("ceiling_height_m", problem));
         }
         if !(1.2..=4.0).contains(&self.corridor_width_m) {
-            return Err(format!("corridor width {} m is outside 1.2..4 m", self.corridor_width_m));
+            return Err(InvalidSetting::field(
+                "corridor_width_m",
+                format!("{} m outside [1.2, 4]", self.corridor_width_m),
+            ));
         }
         Ok(())
     }

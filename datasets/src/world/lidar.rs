@@ -15,6 +15,7 @@ use super::layout::{mix, unit};
 use super::render::gaussian;
 use super::surface::SurfaceKind;
 use super::{Seen, World};
+use crate::InvalidSetting;
 use crate::formats::PointCloud;
 use crate::math::{Point3, Pose3, Vec3};
 
@@ -54,27 +55,48 @@ impl Default for LidarConfig {
 }
 
 impl LidarConfig {
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
         if self.beams == 0 || self.beams > 256 {
-            return Err(format!("beams {} outside 1..256", self.beams));
+            return Err(InvalidSetting::field("beams", format!("{} outside 1..=256", self.beams)));
         }
-        if !(self.min_elevation_deg <= self.max_elevation_deg
-            && self.min_elevation_deg >= -90.0
-            && self.max_elevation_deg <= 90.0)
-        {
-            return Err("elevations must satisfy -90 <= min <= max <= 90 deg".into());
+        if !(self.min_elevation_deg >= -90.0 && self.min_elevation_deg <= self.max_elevation_deg) {
+            let problem =
+                format!("{} deg outside [-90, max_elevation_deg {}]", self.min_elevation_deg, self.max_elevation_deg);
+            return Err(InvalidSetting::field("min_elevation_deg", problem));
+        }
+        if !(self.max_elevation_deg <= 90.0) {
+            return Err(InvalidSetting::field(
+                "max_elevation_deg",
+                format!("{} deg is above 90", self.max_elevation_deg),
+            ));
         }
         if !(self.azimuth_step_deg > 0.01 && self.azimuth_step_deg <= 10.0) {
-            return Err(format!("azimuth step {} deg outside 0.01..10", self.azimuth_step_deg));
+            return Err(InvalidSetting::field(
+                "azimuth_step_deg",
+                format!("{} outside (0.01, 10]", self.azimuth_step_deg),
+            ));
         }
-        if !(self.range_noise_m >= 0.0 && (0.0..1.0).contains(&self.dropout) && self.min_range_m < self.max_range_m) {
-            return Err("range noise must be >= 0, dropout in 0..1 and min range < max range".into());
+        if !(self.range_noise_m >= 0.0 && self.range_noise_m.is_finite()) {
+            return Err(InvalidSetting::field(
+                "range_noise_m",
+                format!("{} must be finite and >= 0", self.range_noise_m),
+            ));
         }
-        if !(self.sweep_period_s >= 0.0 && self.sweep_period_s <= 1.0) {
-            return Err(format!("sweep period {} s outside 0..1", self.sweep_period_s));
+        if !(0.0..1.0).contains(&self.dropout) {
+            return Err(InvalidSetting::field("dropout", format!("{} outside [0, 1)", self.dropout)));
+        }
+        if !(self.min_range_m >= 0.0 && self.min_range_m < self.max_range_m && self.max_range_m.is_finite()) {
+            let problem = format!(
+                "min_range_m {} and max_range_m {} must satisfy 0 <= min < max",
+                self.min_range_m, self.max_range_m
+            );
+            return Err(InvalidSetting::between(problem));
+        }
+        if !(0.0..=1.0).contains(&self.sweep_period_s) {
+            return Err(InvalidSetting::field("sweep_period_s", format!("{} s outside [0, 1]", self.sweep_period_s)));
         }
         if !(0.0..=1.0).contains(&self.glass_pass) {
-            return Err(format!("glass pass fraction {} outside 0..1", self.glass_pass));
+            return Err(InvalidSetting::field("glass_pass", format!("{} outside [0, 1]", self.glass_pass)));
         }
         Ok(())
     }

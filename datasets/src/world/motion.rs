@@ -7,6 +7,7 @@ use serde::{Deserialize, Serialize};
 
 use super::layout::mix;
 use super::render::gaussian;
+use crate::InvalidSetting;
 use crate::formats::{ImuSample, OdometrySample};
 use crate::math::{Pose3, Vec3};
 
@@ -67,24 +68,25 @@ impl MotionConfig {
         }
     }
 
-    pub fn validate(&self) -> Result<(), String> {
-        let rates = [self.odometry_rate_hz, self.imu_rate_hz];
-        if rates.iter().any(|r| !(r.is_finite() && *r > 0.0 && *r <= 2000.0)) {
-            return Err(format!("sensor rates must be in (0, 2000] Hz: odometry {}, IMU {}", rates[0], rates[1]));
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
+        for (field, rate) in [("odometry_rate_hz", self.odometry_rate_hz), ("imu_rate_hz", self.imu_rate_hz)] {
+            if !(rate > 0.0 && rate <= 2000.0) {
+                return Err(InvalidSetting::field(field, format!("{rate} Hz outside (0, 2000]")));
+            }
         }
-        let noises = [
-            self.speed_scale_error,
-            self.speed_noise_mps,
-            self.yaw_rate_bias_rps,
-            self.yaw_rate_noise_rps,
-            self.accel_bias_mps2,
-            self.gyro_bias_rps,
-            self.accel_noise_mps2,
-            self.gyro_noise_rps,
-            self.ramp_slip,
+        let magnitudes = [
+            ("speed_scale_error", self.speed_scale_error),
+            ("speed_noise_mps", self.speed_noise_mps),
+            ("yaw_rate_bias_rps", self.yaw_rate_bias_rps),
+            ("yaw_rate_noise_rps", self.yaw_rate_noise_rps),
+            ("accel_bias_mps2", self.accel_bias_mps2),
+            ("gyro_bias_rps", self.gyro_bias_rps),
+            ("accel_noise_mps2", self.accel_noise_mps2),
+            ("gyro_noise_rps", self.gyro_noise_rps),
+            ("ramp_slip", self.ramp_slip),
         ];
-        if noises.iter().any(|n| !(n.is_finite() && *n >= 0.0)) {
-            return Err("noise and error magnitudes must be finite and >= 0".into());
+        if let Some((field, value)) = magnitudes.iter().find(|(_, v)| !(v.is_finite() && *v >= 0.0)) {
+            return Err(InvalidSetting::field(*field, format!("{value} must be finite and >= 0")));
         }
         Ok(())
     }
