@@ -6,6 +6,8 @@
 use std::path::{Path, PathBuf};
 
 use burn::prelude::*;
+use burn::store::ModuleRecord;
+use burn::store::burn_pack::{Reader, Writer};
 use datasets::InvalidSetting;
 use serde::{Deserialize, Serialize};
 
@@ -115,6 +117,46 @@ pub fn load(dir: &Path, device: &Device) -> Result<(DetectorConfig, Network, Che
     Ok((config, network, meta))
 }
 
+/// How weights files written before the networks had sub-modules name their
+/// tensors, and where those tensors live now: old prefix, new prefix. A key
+/// takes the first rule whose prefix it starts with; today's keys match none.
+const LEGACY_KEYS: [(&str, &str); 11] = [
+    // Faster R-CNN: the trunk, the RPN head and the box head were flat fields.
+    ("features.", "trunk.features."),
+    ("rpn_conv.", "rpn.conv."),
+    ("rpn_cls.", "rpn.cls."),
+    ("rpn_bbox.", "rpn.bbox."),
+    ("fc6.", "box_head.fc6."),
+    ("fc7.", "box_head.fc7."),
+    ("cls_score.", "box_head.cls_score."),
+    ("bbox_pred.", "box_head.bbox_pred."),
+    // The grid networks held both heads' layers, one list always empty.
+    ("classifier.", "head.Fc.classifier."),
+    ("head_convs.0.", "head.Conv.hidden."),
+    ("head_convs.1.", "head.Conv.cells."),
+];
+
+/// A tensor name of today's networks for a name of any version's file.
+fn current_key(name: &str) -> String {
+    LEGACY_KEYS
+        .iter()
+        .find_map(|(old, new)| name.strip_prefix(old).map(|rest| format!("{new}{rest}")))
+        .unwrap_or_else(|| name.to_string())
+}
+
+/// The weights record of `path`, with legacy tensor names renamed (the
+/// parameter ids and data are kept as they are).
+fn read_record(path: &Path) -> Result<ModuleRecord, burn::store::RecordError> {
+    let mut tensors = Reader::from_file(path)?.into_tensors()?;
+    if !tensors.iter().any(|t| current_key(&t.name) != t.name) {
+        return ModuleRecord::load(path);
+    }
+    for tensor in &mut tensors {
+        tensor.name = current_key(&tensor.name);
+    }
+    ModuleRecord::from_bytes(Writer::new(tensors).into_bytes()?)
+}
+
 /// Builds the network of `config` and loads `dir/model.bpk` into it.
 pub fn load_weights(dir: &Path, config: &DetectorConfig, device: &Device) -> Result<Network, CheckpointError> {
     let path = dir.join(WEIGHTS_FILE);
@@ -126,9 +168,10 @@ pub fn load_weights(dir: &Path, config: &DetectorConfig, device: &Device) -> Res
         config: dir.join(CONFIG_FILE),
         source,
     };
+    let record = || read_record(&path).map_err(weights_error);
     let network = match Network::new(config, device) {
-        Network::FasterRcnn(m) => Network::FasterRcnn(m.try_load_file(&path).map_err(weights_error)?),
-        Network::Grid(m) => Network::Grid(m.try_load_file(&path).map_err(weights_error)?),
+        Network::FasterRcnn(m) => Network::FasterRcnn(m.try_load_record(record()?).map_err(weights_error)?),
+        Network::Grid(m) => Network::Grid(m.try_load_record(record()?).map_err(weights_error)?),
     };
     // NaN weights would give NaN boxes and no detections without a word.
     if let Some((param, count)) = network.first_non_finite() {
@@ -169,4 +212,71 @@ pub fn load_for_fine_tuning(dir: &Path, config: &DetectorConfig, device: &Device
         });
     }
     load_weights(dir, config, device)
+}
+
+#[cfg(test)]
+mod tests {
+    use std::collections::BTreeMap;
+
+    use super::*;
+    use crate::config::GridHead;
+
+    /// Tensor name to (shape, bytes) of a weights file.
+    fn tensors(path: &Path) -> BTreeMap<String, (Vec<usize>, Vec<u8>)> {
+        Reader::from_file(path)
+            .unwrap()
+            .into_tensors()
+            .unwrap()
+            .into_iter()
+            .map(|t| (t.name.clone(), (t.shape.to_vec(), t.to_bytes().unwrap().to_vec())))
+            .collect()
+    }
+
+    /// The name a file of before the sub-modules gave `name`.
+    fn legacy_key(name: &str) -> String {
+        LEGACY_KEYS
+            .iter()
+            .find_map(|(old, new)| name.strip_prefix(new).map(|rest| format!("{old}{rest}")))
+            .expect("every tensor had a legacy name")
+    }
+
+    #[test]
+    fn files_use_todays_names_and_legacy_files_load_the_same_weights() {
+        let device = Device::flex();
+        let mut fc = DetectorConfig::new(Backbone::Alexnet, 0.0625);
+        fc.grid_head = GridHead::Fc;
+        let cases = [
+            (
+                DetectorConfig::new(Backbone::FasterRcnn, 0.0625),
+                ["trunk.features.12.bias", "rpn.cls.weight", "box_head.bbox_pred.bias"],
+            ),
+            (
+                DetectorConfig::new(Backbone::Vgg16, 0.0625),
+                ["trunk.features.0.weight", "head.Conv.hidden.weight", "head.Conv.cells.bias"],
+            ),
+            (fc, ["trunk.features.4.weight", "head.Fc.classifier.0.weight", "head.Fc.classifier.2.bias"]),
+        ];
+        for (config, expected) in cases {
+            let dir = tempfile::tempdir().unwrap();
+            let network = Network::new(&config, &device);
+            save_weights(&network, &dir.path().join(WEIGHTS_STEM)).unwrap();
+            let today = tensors(&dir.path().join(WEIGHTS_FILE));
+            for name in expected {
+                assert!(today.contains_key(name), "{}: no {name} in {:?}", config.backbone, today.keys());
+            }
+            assert!(today.keys().all(|k| current_key(k) == *k), "{:?}", today.keys());
+
+            // The same weights under the old names load into the same network.
+            let old = dir.path().join("old");
+            std::fs::create_dir(&old).unwrap();
+            let mut renamed = Reader::from_file(dir.path().join(WEIGHTS_FILE)).unwrap().into_tensors().unwrap();
+            for tensor in &mut renamed {
+                tensor.name = legacy_key(&tensor.name);
+            }
+            Writer::new(renamed).write_to_file(old.join(WEIGHTS_FILE)).unwrap();
+            let loaded = load_weights(&old, &config, &device).unwrap();
+            save_weights(&loaded, &old.join("again")).unwrap();
+            assert_eq!(tensors(&old.join("again.bpk")), today, "{}", config.backbone);
+        }
+    }
 }

@@ -7,6 +7,9 @@ use datasets::preprocess::PreprocessConfig;
 use serde::{Deserialize, Serialize};
 
 use crate::anchors::AnchorConfig;
+use crate::faster_rcnn::FasterRcnnConfig;
+use crate::grid_net::GridNetConfig;
+use crate::trunk::{Architecture, TrunkConfig};
 
 /// The three networks of the paper. Variants are data: one enum, not copies.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum)]
@@ -214,7 +217,28 @@ impl DetectorConfig {
 
     /// A channel count of torchvision's network scaled by the width.
     pub fn channels(&self, torchvision: usize) -> usize {
-        ((torchvision as f32 * self.width).round() as usize).max(4)
+        self.trunk().channels(torchvision)
+    }
+
+    /// The trunk's layers: VGG16 for Faster R-CNN and the vgg16 baseline.
+    pub fn trunk(&self) -> TrunkConfig {
+        let architecture = match self.backbone {
+            Backbone::FasterRcnn | Backbone::Vgg16 => Architecture::Vgg16,
+            Backbone::Alexnet => Architecture::Alexnet,
+        };
+        TrunkConfig::new(architecture).with_in_channels(self.in_channels).with_width(self.width)
+    }
+
+    /// The layers of the faster-rcnn backbone.
+    pub fn faster_rcnn(&self) -> FasterRcnnConfig {
+        FasterRcnnConfig::new(self.trunk(), self.anchors.per_location(), self.hidden, self.num_classes)
+            .with_pool_size(self.roi.pool_size)
+            .with_sampling_ratio(self.roi.sampling_ratio)
+    }
+
+    /// The layers of the vgg16 and alexnet baselines.
+    pub fn grid_net(&self) -> GridNetConfig {
+        GridNetConfig::new(self.trunk(), self.grid_head, self.grid_cells, self.hidden)
     }
 
     pub fn input_size(&self) -> usize {

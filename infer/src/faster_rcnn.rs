@@ -3,41 +3,96 @@
 //! RoIAlign to 7 x 7, two fully connected layers, then class scores and
 //! per-class box deltas.
 
+use burn::config::Config;
 use burn::nn::conv::{Conv2d, Conv2dConfig};
-use burn::nn::pool::MaxPool2d;
 use burn::nn::{Initializer, Linear, LinearConfig, PaddingConfig2d, Relu};
 use burn::prelude::*;
-
-use crate::conv_op::conv2d;
 use burn::tensor::activation::softmax;
 
 use crate::anchors::AnchorConfig;
 use crate::boxes::{BBox, BoxCoder, batched_nms, nms, remove_small};
-use crate::config::DetectorConfig;
+use crate::conv_op::conv2d;
 use crate::roi_align::roi_align;
-use crate::trunk;
+use crate::trunk::{Trunk, TrunkConfig};
 
 pub const STRIDE: f32 = 16.0;
 
+/// torchvision's initialisation of the heads: N(0, std).
+fn normal(std: f64) -> Initializer {
+    Initializer::Normal { mean: 0.0, std }
+}
+
+#[derive(Config, Debug)]
+pub struct FasterRcnnConfig {
+    /// A VGG16 trunk.
+    pub trunk: TrunkConfig,
+    pub anchors_per_location: usize,
+    /// Width of the two fully connected layers of the box head.
+    pub hidden: usize,
+    /// Object classes, without the background.
+    pub num_classes: usize,
+    /// RoIAlign's output side.
+    #[config(default = 7)]
+    pub pool_size: usize,
+    #[config(default = 2)]
+    pub sampling_ratio: usize,
+}
+
+impl FasterRcnnConfig {
+    pub fn init(&self, device: &Device) -> FasterRcnn {
+        let c = self.trunk.out_channels();
+        FasterRcnn {
+            trunk: self.trunk.init(device),
+            rpn: RpnHeadConfig::new(c, self.anchors_per_location).init(device),
+            box_head: BoxHeadConfig::new(c * self.pool_size * self.pool_size, self.hidden, self.num_classes + 1)
+                .init(device),
+            pool_size: self.pool_size,
+            sampling_ratio: self.sampling_ratio,
+        }
+    }
+}
+
+/// The two stages on the trunk's stride-16 features.
 #[derive(Module, Debug)]
 pub struct FasterRcnn {
-    /// VGG16 convolutions (`features.N`), without the last pooling.
-    pub features: Vec<Conv2d>,
-    pub rpn_conv: Conv2d,
-    pub rpn_cls: Conv2d,
-    pub rpn_bbox: Conv2d,
-    pub fc6: Linear,
-    pub fc7: Linear,
-    pub cls_score: Linear,
-    pub bbox_pred: Linear,
-    pool: MaxPool2d,
-    act: Relu,
-    #[module(skip)]
-    anchors_per_location: usize,
+    /// VGG16 convolutions, run without the last pooling.
+    pub trunk: Trunk,
+    pub rpn: RpnHead,
+    pub box_head: BoxHead,
     #[module(skip)]
     pool_size: usize,
     #[module(skip)]
     sampling_ratio: usize,
+}
+
+#[derive(Config, Debug)]
+pub struct RpnHeadConfig {
+    /// Channels of the trunk's features.
+    pub channels: usize,
+    pub anchors_per_location: usize,
+}
+
+impl RpnHeadConfig {
+    pub fn init(&self, device: &Device) -> RpnHead {
+        let (c, a) = (self.channels, self.anchors_per_location);
+        let conv = |i: usize, o: usize, kernel: usize| {
+            let pad = kernel / 2;
+            Conv2dConfig::new([i, o], [kernel, kernel])
+                .with_padding(PaddingConfig2d::Explicit(pad, pad, pad, pad))
+                .with_initializer(normal(0.01))
+                .init(device)
+        };
+        RpnHead { conv: conv(c, c, 3), cls: conv(c, a, 1), bbox: conv(c, 4 * a, 1), act: Relu::new() }
+    }
+}
+
+/// A shared 3x3 convolution, then per anchor an objectness logit and four deltas.
+#[derive(Module, Debug)]
+pub struct RpnHead {
+    pub conv: Conv2d,
+    pub cls: Conv2d,
+    pub bbox: Conv2d,
+    act: Relu,
 }
 
 /// The RPN's raw output in anchor order (location-major, then anchor).
@@ -51,6 +106,53 @@ pub struct RpnOutput {
     pub grid_w: usize,
 }
 
+impl RpnHead {
+    /// `features`: `[B, C, H, W]`.
+    pub fn forward(&self, features: Tensor<4>) -> RpnOutput {
+        let [b, _, h, w] = features.dims();
+        let [a, ..] = self.cls.weight.dims();
+        let t = self.act.forward(conv2d(&self.conv, features));
+        // [B, A, H, W] -> [B, H, W, A] -> [B, H*W*A]
+        let objectness = conv2d(&self.cls, t.clone()).permute([0, 2, 3, 1]).reshape([b, h * w * a]);
+        // [B, A*4, H, W] -> [B, A, 4, H, W] -> [B, H, W, A, 4] -> [B, H*W*A, 4]
+        let deltas = conv2d(&self.bbox, t).reshape([b, a, 4, h, w]).permute([0, 3, 4, 1, 2]).reshape([b, h * w * a, 4]);
+        RpnOutput { objectness, deltas, grid_h: h, grid_w: w }
+    }
+}
+
+#[derive(Config, Debug)]
+pub struct BoxHeadConfig {
+    /// Values of one pooled RoI (channels x pool size x pool size).
+    pub in_features: usize,
+    pub hidden: usize,
+    /// Classes with the background.
+    pub classes: usize,
+}
+
+impl BoxHeadConfig {
+    pub fn init(&self, device: &Device) -> BoxHead {
+        let (h, k) = (self.hidden, self.classes);
+        BoxHead {
+            fc6: LinearConfig::new(self.in_features, h).init(device),
+            fc7: LinearConfig::new(h, h).init(device),
+            cls_score: LinearConfig::new(h, k).with_initializer(normal(0.01)).init(device),
+            bbox_pred: LinearConfig::new(h, 4 * k).with_initializer(normal(0.001)).init(device),
+            act: Relu::new(),
+        }
+    }
+}
+
+/// torchvision's `TwoMLPHead` and `FastRCNNPredictor`: two fully connected
+/// layers, then class logits and per-class box deltas.
+#[derive(Module, Debug)]
+pub struct BoxHead {
+    pub fc6: Linear,
+    pub fc7: Linear,
+    pub cls_score: Linear,
+    pub bbox_pred: Linear,
+    act: Relu,
+}
+
 /// The box head's raw output for a set of RoIs.
 #[derive(Debug, Clone)]
 pub struct HeadOutput {
@@ -60,38 +162,16 @@ pub struct HeadOutput {
     pub box_deltas: Tensor<2>,
 }
 
-impl FasterRcnn {
-    pub fn new(config: &DetectorConfig, device: &Device) -> Self {
-        let c = trunk::vgg16_out_channels(config);
-        let a = config.anchors.per_location();
-        let k = config.num_classes + 1;
-        let p = config.roi.pool_size;
-        // torchvision's initialisation of the heads: N(0, 0.01), box deltas N(0, 0.001).
-        let normal = |std: f64| Initializer::Normal { mean: 0.0, std };
-        let conv = |i: usize, o: usize, kernel: usize, std: f64| {
-            let pad = kernel / 2;
-            Conv2dConfig::new([i, o], [kernel, kernel])
-                .with_padding(PaddingConfig2d::Explicit(pad, pad, pad, pad))
-                .with_initializer(normal(std))
-                .init(device)
-        };
-        Self {
-            features: trunk::vgg16_convs(config, device),
-            rpn_conv: conv(c, c, 3, 0.01),
-            rpn_cls: conv(c, a, 1, 0.01),
-            rpn_bbox: conv(c, 4 * a, 1, 0.01),
-            fc6: LinearConfig::new(c * p * p, config.hidden).init(device),
-            fc7: LinearConfig::new(config.hidden, config.hidden).init(device),
-            cls_score: LinearConfig::new(config.hidden, k).with_initializer(normal(0.01)).init(device),
-            bbox_pred: LinearConfig::new(config.hidden, 4 * k).with_initializer(normal(0.001)).init(device),
-            pool: trunk::max_pool_2x2(),
-            act: Relu::new(),
-            anchors_per_location: a,
-            pool_size: p,
-            sampling_ratio: config.roi.sampling_ratio,
-        }
+impl BoxHead {
+    /// `pooled`: `[K, in_features]`, one flattened RoI per row.
+    pub fn forward(&self, pooled: Tensor<2>) -> HeadOutput {
+        let x = self.act.forward(self.fc6.forward(pooled));
+        let x = self.act.forward(self.fc7.forward(x));
+        HeadOutput { class_logits: self.cls_score.forward(x.clone()), box_deltas: self.bbox_pred.forward(x) }
     }
+}
 
+impl FasterRcnn {
     /// `[B, C, H/16, W/16]` features.
     pub fn trunk(&self, x: Tensor<4>) -> Tensor<4> {
         self.trunk_from(x, 0)
@@ -100,28 +180,20 @@ impl FasterRcnn {
     /// The trunk from convolution `start` on, for inputs that are the
     /// output of the first `start` convolutions (cached frozen features).
     pub fn trunk_from(&self, x: Tensor<4>, start: usize) -> Tensor<4> {
-        trunk::vgg16_forward_range(&self.features, &self.pool, &self.act, x, start..self.features.len(), false)
+        self.trunk.forward(x, start..self.trunk.features.len(), false)
     }
 
     /// The first `end` convolutions only.
     pub fn trunk_until(&self, x: Tensor<4>, end: usize) -> Tensor<4> {
-        trunk::vgg16_forward_range(&self.features, &self.pool, &self.act, x, 0..end, false)
+        self.trunk.forward(x, 0..end, false)
     }
 
     pub fn rpn(&self, features: Tensor<4>) -> RpnOutput {
-        let [b, _, h, w] = features.dims();
-        let a = self.anchors_per_location;
-        let t = self.act.forward(conv2d(&self.rpn_conv, features));
-        // [B, A, H, W] -> [B, H, W, A] -> [B, H*W*A]
-        let objectness = conv2d(&self.rpn_cls, t.clone()).permute([0, 2, 3, 1]).reshape([b, h * w * a]);
-        // [B, A*4, H, W] -> [B, A, 4, H, W] -> [B, H, W, A, 4] -> [B, H*W*A, 4]
-        let deltas =
-            conv2d(&self.rpn_bbox, t).reshape([b, a, 4, h, w]).permute([0, 3, 4, 1, 2]).reshape([b, h * w * a, 4]);
-        RpnOutput { objectness, deltas, grid_h: h, grid_w: w }
+        self.rpn.forward(features)
     }
 
     /// RoIAlign of each image's RoIs (input pixels) from `features`, then the
-    /// two fully connected layers and the predictors.
+    /// box head.
     pub fn head(&self, features: Tensor<4>, rois: &[Vec<BBox>]) -> HeadOutput {
         let [b, ..] = features.dims();
         let mut pooled = Vec::with_capacity(b);
@@ -133,10 +205,8 @@ impl FasterRcnn {
             let map = features.clone().narrow(0, i, 1);
             pooled.push(roi_align(map, &scaled, self.pool_size, self.sampling_ratio));
         }
-        let x: Tensor<2> = Tensor::cat(pooled, 0).flatten(1, 3);
-        let x = self.act.forward(self.fc6.forward(x));
-        let x = self.act.forward(self.fc7.forward(x));
-        HeadOutput { class_logits: self.cls_score.forward(x.clone()), box_deltas: self.bbox_pred.forward(x) }
+        // [K, C, P, P] -> [K, C*P*P]
+        self.box_head.forward(Tensor::cat(pooled, 0).flatten(1, 3))
     }
 }
 

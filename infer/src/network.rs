@@ -9,7 +9,7 @@ use burn::prelude::*;
 use crate::boxes::{BBox, batched_nms};
 use crate::config::{Backbone, DetectorConfig};
 use crate::faster_rcnn::{self, FasterRcnn};
-use crate::grid_net::{CELL_VALUES, GridNet};
+use crate::grid_net::{CELL_VALUES, GridHeadLayers, GridNet};
 
 // One network lives per process; boxing the larger variant would buy nothing.
 #[allow(clippy::large_enum_variant)]
@@ -35,8 +35,8 @@ impl Network {
     /// a validation pass).
     pub fn new(config: &DetectorConfig, device: &Device) -> Self {
         let network = match config.backbone {
-            Backbone::FasterRcnn => Self::FasterRcnn(FasterRcnn::new(config, device)),
-            Backbone::Vgg16 | Backbone::Alexnet => Self::Grid(GridNet::new(config, device)),
+            Backbone::FasterRcnn => Self::FasterRcnn(config.faster_rcnn().init(device)),
+            Backbone::Vgg16 | Backbone::Alexnet => Self::Grid(config.grid_net().init(device)),
         };
         struct Draw;
         impl ModuleVisitor for Draw {
@@ -97,22 +97,29 @@ impl Network {
     /// layers): what pretrained weights fill.
     pub fn trunk_layers_mut(&mut self) -> (&mut Vec<Conv2d>, Vec<&mut Linear>) {
         match self {
-            Self::FasterRcnn(m) => (&mut m.features, vec![&mut m.fc6, &mut m.fc7]),
-            Self::Grid(m) => (&mut m.features, m.classifier.iter_mut().take(2).collect()),
+            Self::FasterRcnn(m) => (&mut m.trunk.features, vec![&mut m.box_head.fc6, &mut m.box_head.fc7]),
+            Self::Grid(m) => {
+                let GridNet { trunk, head } = m;
+                let hidden = match head {
+                    GridHeadLayers::Fc(fc) => fc.classifier.iter_mut().take(2).collect(),
+                    GridHeadLayers::Conv(_) => Vec::new(),
+                };
+                (&mut trunk.features, hidden)
+            }
         }
     }
 
     pub fn hidden_layers(&self) -> Vec<&Linear> {
         match self {
-            Self::FasterRcnn(m) => vec![&m.fc6, &m.fc7],
-            Self::Grid(m) => m.classifier.iter().take(2).collect(),
+            Self::FasterRcnn(m) => vec![&m.box_head.fc6, &m.box_head.fc7],
+            Self::Grid(m) => m.hidden_layers(),
         }
     }
 
     pub fn trunk_convs(&self) -> &[Conv2d] {
         match self {
-            Self::FasterRcnn(m) => &m.features,
-            Self::Grid(m) => &m.features,
+            Self::FasterRcnn(m) => &m.trunk.features,
+            Self::Grid(m) => &m.trunk.features,
         }
     }
 

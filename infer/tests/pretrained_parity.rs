@@ -70,7 +70,7 @@ fn check(backbone: Backbone, file: &str, key: &str) {
         want["trunk_shape"].as_array().unwrap().iter().map(|v| v.as_u64().unwrap() as usize).collect();
     assert_eq!(trunk.dims().to_vec(), shape);
     assert_close(&format!("{key} trunk"), &infer::host(trunk.clone()), &want["trunk"]);
-    assert_close(&format!("{key} hidden"), &infer::host(net.hidden(trunk)), &want["hidden"]);
+    assert_close(&format!("{key} hidden"), &infer::host(net.hidden(trunk).expect("the fc head")), &want["hidden"]);
 }
 
 #[test]
@@ -97,7 +97,7 @@ fn the_conv_grid_head_takes_the_convolutions_and_the_stride_16_features() {
     assert_eq!(features.dims(), [1, 32, 14, 14]);
     // torchvision's trunk is these features after the last 2x2 max pooling
     // (its 7x7 average pooling of a 7x7 map changes nothing).
-    let pooled = infer::trunk::max_pool_2x2().forward(features);
+    let pooled = net.trunk.pool().forward(features);
     assert_close("vgg16 conv-head trunk, pooled", &infer::host(pooled), &reference()["vgg16"]["trunk"]);
 }
 

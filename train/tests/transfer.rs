@@ -174,9 +174,9 @@ fn a_checkpoint_folder_starts_every_layer_and_one_of_another_width_is_refused() 
     let fresh = Network::new(&config, &device);
     let heads = |n: &Network| match n {
         Network::FasterRcnn(m) => [
-            infer::host(m.rpn_cls.weight.val()),
-            infer::host(m.fc6.weight.val()),
-            infer::host(m.bbox_pred.weight.val()),
+            infer::host(m.rpn.cls.weight.val()),
+            infer::host(m.box_head.fc6.weight.val()),
+            infer::host(m.box_head.bbox_pred.weight.val()),
         ],
         Network::Grid(_) => unreachable!("a faster-rcnn checkpoint"),
     };

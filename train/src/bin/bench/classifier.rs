@@ -12,14 +12,12 @@ use std::time::Instant;
 
 use anyhow::Result;
 use burn::module::Module;
-use burn::nn::conv::Conv2d;
 use burn::nn::loss::CrossEntropyLossConfig;
-use burn::nn::pool::{AdaptiveAvgPool2d, AdaptiveAvgPool2dConfig, MaxPool2d};
+use burn::nn::pool::{AdaptiveAvgPool2d, AdaptiveAvgPool2dConfig};
 use burn::nn::{Dropout, DropoutConfig, Linear, LinearConfig, Relu};
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::prelude::*;
-use infer::config::{Backbone, DetectorConfig};
-use infer::trunk;
+use infer::trunk::{Architecture, Trunk, TrunkConfig};
 use rand::rngs::ChaCha8Rng;
 use rand::{RngExt, SeedableRng};
 use train::fused_adamw::FusedAdamW;
@@ -34,8 +32,7 @@ pub enum Model {
 
 #[derive(Module, Debug)]
 struct Classifier {
-    convs: Vec<Conv2d>,
-    pool: MaxPool2d,
+    trunk: Trunk,
     avgpool: AdaptiveAvgPool2d,
     fc: Vec<Linear>,
     dropout: Dropout,
@@ -44,21 +41,16 @@ struct Classifier {
 
 impl Classifier {
     fn new(model: Model, device: &Device) -> Self {
-        let (backbone, width, grid) = match model {
-            Model::Alexnet => (Backbone::Alexnet, 1.0, 6),
-            Model::Vgg16w4 => (Backbone::Vgg16, 0.25, 7),
-            Model::Vgg16 => (Backbone::Vgg16, 1.0, 7),
+        let (architecture, width, grid) = match model {
+            Model::Alexnet => (Architecture::Alexnet, 1.0, 6),
+            Model::Vgg16w4 => (Architecture::Vgg16, 0.25, 7),
+            Model::Vgg16 => (Architecture::Vgg16, 1.0, 7),
         };
-        let config = DetectorConfig::new(backbone, width);
-        let (convs, pool, channels) = match backbone {
-            Backbone::Alexnet => (trunk::alexnet_convs(&config, device), trunk::alexnet_pool(), config.channels(256)),
-            _ => (trunk::vgg16_convs(&config, device), trunk::max_pool_2x2(), config.channels(512)),
-        };
+        let config = TrunkConfig::new(architecture).with_width(width);
         let hidden = config.channels(4096);
-        let sizes = [(channels * grid * grid, hidden), (hidden, hidden), (hidden, 2)];
+        let sizes = [(config.out_channels() * grid * grid, hidden), (hidden, hidden), (hidden, 2)];
         Self {
-            convs,
-            pool,
+            trunk: config.init(device),
             avgpool: AdaptiveAvgPool2dConfig::new([grid, grid]).init(),
             fc: sizes.iter().map(|&(i, o)| LinearConfig::new(i, o).init(device)).collect(),
             dropout: DropoutConfig::new(0.5).init(),
@@ -67,11 +59,7 @@ impl Classifier {
     }
 
     fn forward(&self, x: Tensor<4>) -> Tensor<2> {
-        let x = if self.convs.len() == trunk::ALEXNET_CHANNELS.len() {
-            trunk::alexnet_forward(&self.convs, &self.pool, &self.act, x)
-        } else {
-            trunk::vgg16_forward(&self.convs, &self.pool, &self.act, x, true)
-        };
+        let x = self.trunk.forward_all(x, true);
         let x: Tensor<2> = self.avgpool.forward(x).flatten(1, 3);
         let x = self.dropout.forward(self.act.forward(self.fc[0].forward(x)));
         let x = self.dropout.forward(self.act.forward(self.fc[1].forward(x)));
