@@ -104,6 +104,8 @@ pub struct GridNet {
 }
 
 /// The layers of the [`GridHead`] the config chose.
+// One head lives per network; boxing the larger variant would buy nothing.
+#[allow(clippy::large_enum_variant)]
 #[derive(Module, Debug)]
 pub enum GridHeadLayers {
     Fc(FcGridHead),
