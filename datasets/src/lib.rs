@@ -12,6 +12,7 @@ pub mod canny;
 pub mod cli;
 pub mod corpus;
 pub mod error;
+pub mod fingerprint;
 pub mod formats;
 pub mod generate;
 pub mod invalid_setting;

@@ -146,6 +146,15 @@ pub fn run_benchmark(
     );
     let mut source = CornerSource::detector(checkpoint, device.clone(), config.fusion.min_score)?;
     let detector = infer::detector::Detector::load(checkpoint, device)?;
+    // A sequence's run is redone when anything that made it changed.
+    let made_by = serde_json::json!({
+        "localize": config,
+        "detector": [
+            datasets::fingerprint::of_file(&checkpoint.join(infer::checkpoint::CONFIG_FILE))?,
+            datasets::fingerprint::of_file(&checkpoint.join(infer::checkpoint::WEIGHTS_FILE))?,
+        ],
+        "program": datasets::fingerprint::of_program()?,
+    });
     let mut rows = Vec::new();
     for (building, speed, first) in cases {
         let dir = sequence_dir(out, building, speed);
@@ -153,23 +162,40 @@ pub fn run_benchmark(
         bar.set_message(format!("building {building} at {speed} m/s: data"));
         ensure_data(&dir, &data)?;
         bar.inc(1);
-        bar.set_message(format!("building {building} at {speed} m/s: localizing"));
         let sequence = RecordedSequence::open_with(&dir.join("sequence"), &config.sync)?;
-        let result = run_sequence(&sequence, &mut source, config, false)?;
-        let measured = metrics(&sequence, &result)?.ok_or_else(|| LocalizeError::Sequence {
-            path: dir.clone(),
-            message: "the ground truth does not overlap the run".into(),
-        })?;
-        write_outputs(&dir.join("run"), config, &result, sequence_truth(&sequence), Some(&measured))?;
+        let measures_ap = first && plan.detection_images > 0;
+        let inputs = serde_json::json!({ "data": data, "made_by": made_by, "ap50": measures_ap });
+        let record = match SequenceRecord::read(&dir, &inputs) {
+            Some(record) => record,
+            None => {
+                bar.set_message(format!("building {building} at {speed} m/s: localizing"));
+                let result = run_sequence(&sequence, &mut source, config, false)?;
+                let measured = metrics(&sequence, &result)?.ok_or_else(|| LocalizeError::Sequence {
+                    path: dir.clone(),
+                    message: "the ground truth does not overlap the run".into(),
+                })?;
+                write_outputs(&dir.join("run"), config, &result, sequence_truth(&sequence), Some(&measured))?;
+                let ap50 = if measures_ap {
+                    let test = dir.join("detection").join("test.json");
+                    let set = infer::labeled::load_coco_set(&test, &detector.config.preprocess)?;
+                    Some(infer::eval::evaluate_set(&detector, &set, 4).ap50)
+                } else {
+                    None
+                };
+                let record = SequenceRecord {
+                    fused: measured.fused.overall,
+                    odometry_imu: measured.odometry_imu.overall,
+                    scans: measured.frames,
+                    corrected_frames: measured.fused_frames,
+                    ms_per_frame: measured.mean_total_ms,
+                    ap50,
+                };
+                record.write(&dir, &inputs)?;
+                record
+            }
+        };
         bar.inc(1);
         let truth = sequence_truth(&sequence).expect("a generated sequence has ground truth");
-        let ap50 = if first && plan.detection_images > 0 {
-            let set =
-                infer::labeled::load_coco_set(&dir.join("detection").join("test.json"), &detector.config.preprocess)?;
-            Some(infer::eval::evaluate_set(&detector, &set, 4).ap50)
-        } else {
-            None
-        };
         let distance_m =
             truth.poses.windows(2).map(|w| (w[1].translation.vector - w[0].translation.vector).norm()).sum();
         let peers = PEERS
@@ -185,13 +211,13 @@ pub fn run_benchmark(
             building,
             speed_mps: speed,
             levels,
-            scans: measured.frames,
+            scans: record.scans,
             distance_m,
-            fused: measured.fused.overall,
-            odometry_imu: measured.odometry_imu.overall,
-            corrected_frames: measured.fused_frames,
-            ms_per_frame: measured.mean_total_ms,
-            ap50,
+            fused: record.fused,
+            odometry_imu: record.odometry_imu,
+            corrected_frames: record.corrected_frames,
+            ms_per_frame: record.ms_per_frame,
+            ap50: record.ap50,
             peers,
         });
     }
@@ -204,6 +230,41 @@ pub fn run_benchmark(
         }
     }
     Ok(rows)
+}
+
+/// What a sequence's fused run measured, kept in `run/` with what made it
+/// (the data's settings, the localization settings, the detector's files and
+/// the program), so that a second benchmark (to add the peers' columns, or
+/// after a crash) redoes only what changed.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SequenceRecord {
+    pub fused: ErrorSummary,
+    pub odometry_imu: ErrorSummary,
+    pub scans: usize,
+    pub corrected_frames: usize,
+    pub ms_per_frame: f64,
+    pub ap50: Option<f64>,
+}
+
+/// The record's file inside a sequence folder.
+const RECORD_FILE: &str = "run/benchmark-run.json";
+
+impl SequenceRecord {
+    /// The record of `dir` when it was made from `inputs`; `None` when there
+    /// is none, it is unreadable or anything differs.
+    pub fn read(dir: &Path, inputs: &serde_json::Value) -> Option<Self> {
+        let text = std::fs::read_to_string(dir.join(RECORD_FILE)).ok()?;
+        let file: serde_json::Value = serde_json::from_str(&text).ok()?;
+        if file.get("inputs") != Some(inputs) {
+            return None;
+        }
+        serde_json::from_value(file.get("record")?.clone()).ok()
+    }
+
+    pub fn write(&self, dir: &Path, inputs: &serde_json::Value) -> Result<()> {
+        let file = serde_json::json!({ "inputs": inputs, "record": self });
+        Ok(datasets::atomic::write_json(&dir.join(RECORD_FILE), &file)?)
+    }
 }
 
 fn sequence_truth(sequence: &RecordedSequence) -> Option<&datasets::formats::Trajectory> {

@@ -61,7 +61,7 @@ fn nearest_stamp(stamps: &[f64], t: f64) -> Option<usize> {
 }
 
 /// Summary statistics of a set of translation errors.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, serde::Deserialize)]
 pub struct ErrorSummary {
     pub matched: usize,
     pub rmse_x: f64,

@@ -2,7 +2,7 @@
 //! named, plans outside the supported ranges are refused, and the tables
 //! carry each figure in its unit (Markdown in mm, CSV in m).
 
-use localize::benchmark::{BenchmarkPlan, BenchmarkRow, csv, markdown, parse_buildings, parse_speeds};
+use localize::benchmark::{BenchmarkPlan, BenchmarkRow, SequenceRecord, csv, markdown, parse_buildings, parse_speeds};
 use localize::eval::ErrorSummary;
 
 #[test]
@@ -101,4 +101,26 @@ fn tables_carry_each_figure_in_its_unit() {
     assert_eq!(cell("kiss_icp_ate"), "");
     assert_eq!(cell("genz_icp_rmse_x"), "0.020000");
     assert_eq!(cell("ap50"), "0.8123");
+}
+
+#[test]
+fn a_sequence_run_is_reused_only_when_what_made_it_is_the_same() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::create_dir(dir.path().join("run")).unwrap();
+    let record = SequenceRecord {
+        fused: summary(0.003, 0.004, 0.012),
+        odometry_imu: summary(0.1, 0.2, 0.2),
+        scans: 600,
+        corrected_frames: 590,
+        ms_per_frame: 71.25,
+        ap50: Some(0.812_345_678_9),
+    };
+    let inputs = serde_json::json!({ "data": { "seed": 7 }, "made_by": { "program": "0123" }, "ap50": true });
+    assert_eq!(SequenceRecord::read(dir.path(), &inputs), None, "nothing to reuse yet");
+    record.write(dir.path(), &inputs).unwrap();
+    assert_eq!(SequenceRecord::read(dir.path(), &inputs), Some(record.clone()));
+    let rebuilt = serde_json::json!({ "data": { "seed": 7 }, "made_by": { "program": "4567" }, "ap50": true });
+    assert_eq!(SequenceRecord::read(dir.path(), &rebuilt), None, "another program redoes the run");
+    std::fs::write(dir.path().join("run/benchmark-run.json"), "{ \"inputs\": ").unwrap();
+    assert_eq!(SequenceRecord::read(dir.path(), &inputs), None, "a torn record redoes the run");
 }

@@ -53,17 +53,12 @@ pub fn run_stage<I: Serialize, O: Serialize + DeserializeOwned>(
     Ok((outputs, false))
 }
 
-/// A stable fingerprint of a file's bytes (FNV-1a, 64 bits), so that a
-/// stage that reads a file reruns when the file changes.
+/// A stable fingerprint of a file's bytes, so that a stage that reads a
+/// file reruns when the file changes.
 pub fn file_fingerprint(path: &Path) -> Result<String> {
     let bytes =
         std::fs::read(path).map_err(|source| ReproduceError::Io { path: path.to_path_buf(), what: "read", source })?;
-    let mut hash: u64 = 0xcbf2_9ce4_8422_2325;
-    for b in bytes {
-        hash ^= u64::from(b);
-        hash = hash.wrapping_mul(0x0100_0000_01b3);
-    }
-    Ok(format!("{hash:016x}"))
+    Ok(datasets::fingerprint::of_bytes(&bytes))
 }
 
 #[cfg(test)]
