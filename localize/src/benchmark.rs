@@ -6,7 +6,9 @@
 //!
 //! Layout of `--out`: `building-N/speed-S/` holds the generated data
 //! (`sequence/`, `detection/`, `preview/topdown.png`), `run/` the fused run's
-//! outputs and `peers/NAME.txt` (TUM, robot frame) any peer's trajectory.
+//! outputs with `benchmark-run.json` (its figures and what made them, so an
+//! unchanged run is not redone) and `peers/NAME.txt` (TUM, robot frame) any
+//! peer's trajectory.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
