@@ -100,7 +100,7 @@ const HINT_CHUNK: usize = 256;
 
 /// The `k` nearest neighbours of `p` (unordered). Scans list points in
 /// sweep order, so a point's neighbourhood is about as large as the
-/// previous point's: a search within 1.5 x that radius (`radius2`, squared,
+/// previous point's: a search within 1.2 x that radius (`radius2`, squared,
 /// updated here) prunes most of the tree and returns the same k points
 /// whenever it finds k; otherwise it is repeated without a bound.
 fn nearest_with_hint(
@@ -115,7 +115,7 @@ fn nearest_with_hint(
         found = tree.nearest_n_within::<SquaredEuclidean>(&query, f32::INFINITY, k, false);
     }
     let farthest = found.iter().fold(0.0f32, |m, n| m.max(n.distance));
-    *radius2 = if farthest > 0.0 { farthest * 2.25 } else { f32::INFINITY };
+    *radius2 = if farthest > 0.0 { farthest * 1.44 } else { f32::INFINITY };
     found
 }
 
