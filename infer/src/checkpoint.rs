@@ -145,12 +145,9 @@ fn current_key(name: &str) -> String {
 }
 
 /// The weights record of `path`, with legacy tensor names renamed (the
-/// parameter ids and data are kept as they are).
+/// parameter ids and data are kept as they are), from one read of the file.
 fn read_record(path: &Path) -> Result<ModuleRecord, burn::store::RecordError> {
     let mut tensors = Reader::from_file(path)?.into_tensors()?;
-    if !tensors.iter().any(|t| current_key(&t.name) != t.name) {
-        return ModuleRecord::load(path);
-    }
     for tensor in &mut tensors {
         tensor.name = current_key(&tensor.name);
     }
