@@ -1,13 +1,16 @@
 //! `localize benchmark`: generated buildings the detector and the settings
 //! were never tuned on, driven at several speeds with a robot's sensor
-//! timing, localized by the fused pipeline and by odometry/IMU alone, beside
-//! the LIDAR odometry peers whose trajectories a script left in the folder.
-//! One table out, as Markdown, CSV and JSON.
+//! timing, localized by the fused pipeline, by the same without the camera,
+//! by the paper's estimator (no scan matching) and by odometry/IMU alone,
+//! beside the LIDAR odometry peers whose trajectories a script left in the
+//! folder. One table out, as Markdown, CSV and JSON.
 //!
 //! Layout of `--out`: `building-N/speed-S/` holds the generated data
 //! (`sequence/`, `detection/`, `preview/topdown.png`), `run/` the fused run's
-//! outputs with `benchmark-run.json` (its figures and what made them, so an
-//! unchanged run is not redone) and `peers/NAME.txt` (TUM, robot frame) any
+//! outputs, `run-without-camera/` and `run-without-scan-match/` the two
+//! ablations', `benchmark-run.json` their figures and what made them (so an
+//! unchanged run is not redone; beside the run folders, which `localize run`
+//! replaces whole), and `peers/NAME.txt` (TUM, robot frame) any
 //! peer's trajectory.
 
 use std::fmt::Write as _;
@@ -23,7 +26,7 @@ use crate::config::LocalizeConfig;
 use crate::corner_source::CornerSource;
 use crate::error::{LocalizeError, Result};
 use crate::eval::{Alignment, ErrorSummary, compare};
-use crate::run::{metrics, run_sequence, write_outputs};
+use crate::run::{RunMetrics, metrics, run_sequence, write_outputs};
 use crate::sequence::RecordedSequence;
 
 /// The LIDAR odometry systems `scripts/lidar_peers.py` runs.
@@ -112,7 +115,11 @@ pub struct BenchmarkRow {
     pub distance_m: f64,
     pub fused: ErrorSummary,
     pub odometry_imu: ErrorSummary,
-    /// Frames whose pose the corners or planes corrected.
+    /// The same estimator without the camera (LIDAR and odometry/IMU).
+    pub without_camera: ErrorSummary,
+    /// The paper's estimator: corners and walls, no scan-to-map registration.
+    pub without_scan_match: ErrorSummary,
+    /// Frames whose pose the corners, walls or scan corrected.
     pub corrected_frames: usize,
     pub ms_per_frame: f64,
     /// The detector's AP@0.5 on the building's own labelled images.
@@ -171,12 +178,16 @@ pub fn run_benchmark(
             Some(record) => record,
             None => {
                 bar.set_message(format!("building {building} at {speed} m/s: localizing"));
-                let result = run_sequence(&sequence, &mut source, config, false)?;
-                let measured = metrics(&sequence, &result)?.ok_or_else(|| LocalizeError::Sequence {
-                    path: dir.clone(),
-                    message: "the ground truth does not overlap the run".into(),
-                })?;
-                write_outputs(&dir.join("run"), config, &result, sequence_truth(&sequence), Some(&measured))?;
+                // Records were once kept inside `run/`, which a new run must replace whole.
+                let _ = std::fs::remove_file(dir.join("run").join(RECORD_FILE));
+                let measured = localize_into(&dir, "run", &sequence, &mut source, config)?;
+                bar.set_message(format!("building {building} at {speed} m/s: without the camera"));
+                let without_camera =
+                    localize_into(&dir, "run-without-camera", &sequence, &mut CornerSource::Off, config)?;
+                bar.set_message(format!("building {building} at {speed} m/s: without scan matching"));
+                let mut paper = config.clone();
+                paper.scan_match.enabled = false;
+                let without_scan_match = localize_into(&dir, "run-without-scan-match", &sequence, &mut source, &paper)?;
                 let ap50 = if measures_ap {
                     let test = dir.join("detection").join("test.json");
                     let set = infer::labeled::load_coco_set(&test, &detector.config.preprocess)?;
@@ -187,6 +198,8 @@ pub fn run_benchmark(
                 let record = SequenceRecord {
                     fused: measured.fused.overall,
                     odometry_imu: measured.odometry_imu.overall,
+                    without_camera: without_camera.fused.overall,
+                    without_scan_match: without_scan_match.fused.overall,
                     scans: measured.frames,
                     corrected_frames: measured.fused_frames,
                     ms_per_frame: measured.mean_total_ms,
@@ -217,6 +230,8 @@ pub fn run_benchmark(
             distance_m,
             fused: record.fused,
             odometry_imu: record.odometry_imu,
+            without_camera: record.without_camera,
+            without_scan_match: record.without_scan_match,
             corrected_frames: record.corrected_frames,
             ms_per_frame: record.ms_per_frame,
             ap50: record.ap50,
@@ -242,6 +257,8 @@ pub fn run_benchmark(
 pub struct SequenceRecord {
     pub fused: ErrorSummary,
     pub odometry_imu: ErrorSummary,
+    pub without_camera: ErrorSummary,
+    pub without_scan_match: ErrorSummary,
     pub scans: usize,
     pub corrected_frames: usize,
     pub ms_per_frame: f64,
@@ -249,7 +266,7 @@ pub struct SequenceRecord {
 }
 
 /// The record's file inside a sequence folder.
-const RECORD_FILE: &str = "run/benchmark-run.json";
+const RECORD_FILE: &str = "benchmark-run.json";
 
 impl SequenceRecord {
     /// The record of `dir` when it was made from `inputs`; `None` when there
@@ -267,6 +284,24 @@ impl SequenceRecord {
         let file = serde_json::json!({ "inputs": inputs, "record": self });
         Ok(datasets::atomic::write_json(&dir.join(RECORD_FILE), &file)?)
     }
+}
+
+/// Localizes `sequence` with `source` and `config` into `dir/name` and
+/// returns its metrics.
+fn localize_into(
+    dir: &Path,
+    name: &str,
+    sequence: &RecordedSequence,
+    source: &mut CornerSource,
+    config: &LocalizeConfig,
+) -> Result<RunMetrics> {
+    let result = run_sequence(sequence, source, config, false)?;
+    let measured = metrics(sequence, &result)?.ok_or_else(|| LocalizeError::Sequence {
+        path: dir.to_path_buf(),
+        message: "the ground truth does not overlap the run".into(),
+    })?;
+    write_outputs(&dir.join(name), config, &result, sequence_truth(sequence), Some(&measured))?;
+    Ok(measured)
 }
 
 fn sequence_truth(sequence: &RecordedSequence) -> Option<&datasets::formats::Trajectory> {
@@ -292,7 +327,8 @@ fn ensure_data(dir: &Path, config: &DatagenConfig) -> Result<()> {
     }
     // A changed or unfinished generation starts from an empty folder.
     let _ = std::fs::remove_file(&marker);
-    for part in ["sequence", "detection", "preview", "run"] {
+    let _ = std::fs::remove_file(dir.join(RECORD_FILE));
+    for part in ["sequence", "detection", "preview", "run", "run-without-camera", "run-without-scan-match"] {
         let path = dir.join(part);
         if path.exists() {
             std::fs::remove_dir_all(&path).map_err(|e| datasets::DataError::io(&path, e))?;
@@ -337,20 +373,21 @@ pub fn parse_speeds(text: &str) -> std::result::Result<Vec<f64>, String> {
 /// The table as Markdown: errors in millimetres.
 pub fn markdown(rows: &[BenchmarkRow]) -> String {
     let mut out = String::from(
-        "| building | levels | speed m/s | scans | distance m | fused x | fused y | fused z | fused ATE | odom/IMU ATE |",
+        "| building | levels | speed m/s | scans | distance m | fused x | fused y | fused z | fused ATE | \
+         without camera ATE | without scan matching ATE | odom/IMU ATE |",
     );
     for p in PEERS {
         let _ = write!(out, " {p} x | {p} y | {p} ATE |");
     }
     out.push_str(" corrected | ms/frame | AP@0.5 |\n|");
-    for _ in 0..(10 + 3 * PEERS.len() + 3) {
+    for _ in 0..(12 + 3 * PEERS.len() + 3) {
         out.push_str("---:|");
     }
     out.push('\n');
     for r in rows {
         let _ = write!(
             out,
-            "| {} | {} | {} | {} | {:.1} | {} | {} | {} | {} | {} |",
+            "| {} | {} | {} | {} | {:.1} | {} | {} | {} | {} | {} | {} | {} |",
             r.building,
             r.levels,
             r.speed_mps,
@@ -360,6 +397,8 @@ pub fn markdown(rows: &[BenchmarkRow]) -> String {
             fmt_mm(r.fused.rmse_y),
             fmt_mm(r.fused.rmse_z),
             fmt_mm(r.fused.ate_rmse),
+            fmt_mm(r.without_camera.ate_rmse),
+            fmt_mm(r.without_scan_match.ate_rmse),
             fmt_mm(r.odometry_imu.ate_rmse)
         );
         for (_, peer) in &r.peers {
@@ -379,7 +418,8 @@ pub fn markdown(rows: &[BenchmarkRow]) -> String {
 /// The table as CSV: errors in metres.
 pub fn csv(rows: &[BenchmarkRow]) -> String {
     let mut out = String::from(
-        "building,levels,speed_mps,scans,distance_m,fused_rmse_x,fused_rmse_y,fused_rmse_z,fused_ate,odometry_imu_ate",
+        "building,levels,speed_mps,scans,distance_m,fused_rmse_x,fused_rmse_y,fused_rmse_z,fused_ate,\
+         without_camera_ate,without_scan_match_ate,odometry_imu_ate",
     );
     for p in PEERS {
         let p = p.replace('-', "_");
@@ -389,7 +429,7 @@ pub fn csv(rows: &[BenchmarkRow]) -> String {
     for r in rows {
         let _ = write!(
             out,
-            "{},{},{},{},{:.3},{:.6},{:.6},{:.6},{:.6},{:.6}",
+            "{},{},{},{},{:.3},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6}",
             r.building,
             r.levels,
             r.speed_mps,
@@ -399,6 +439,8 @@ pub fn csv(rows: &[BenchmarkRow]) -> String {
             r.fused.rmse_y,
             r.fused.rmse_z,
             r.fused.ate_rmse,
+            r.without_camera.ate_rmse,
+            r.without_scan_match.ate_rmse,
             r.odometry_imu.ate_rmse
         );
         for (_, peer) in &r.peers {

@@ -13,6 +13,7 @@ use crate::normals::NormalConfig;
 use crate::plane_landmarks::PlaneLandmarkConfig;
 use crate::planes::PlaneConfig;
 use crate::pose::PoseConfig;
+use crate::scan_match::ScanMatchConfig;
 use crate::sequence::SyncConfig;
 use crate::voxel::VoxelConfig;
 
@@ -26,6 +27,7 @@ pub struct LocalizeConfig {
     pub fusion: FusionConfig,
     pub landmarks: LandmarkConfig,
     pub plane_landmarks: PlaneLandmarkConfig,
+    pub scan_match: ScanMatchConfig,
     pub pose: PoseConfig,
     pub ekf: EkfConfig,
     pub sync: SyncConfig,
@@ -35,6 +37,14 @@ pub struct LocalizeConfig {
 const MAX_COUNT: usize = 10_000_000;
 
 impl LocalizeConfig {
+    /// The paper's estimator: corners and walls with odometry/IMU, without
+    /// the scan-to-map registration this project adds.
+    pub fn paper_estimator() -> Self {
+        let mut config = Self::default();
+        config.scan_match.enabled = false;
+        config
+    }
+
     /// Checks every setting against the range where it means something; the
     /// message names the section and field (`normals.neighbours`).
     pub fn validate(&self) -> Result<(), InvalidSetting> {
@@ -103,6 +113,8 @@ impl LocalizeConfig {
         count("pose.iterations", o.iterations, 1, 1000)?;
         count("pose.min_matches", o.min_matches, 1, MAX_COUNT)?;
         positive("pose.seed_gate_m", o.seed_gate_m, 100.0)?;
+        non_negative("pose.scan_pinned_m", o.scan_pinned_m, 100.0)?;
+        non_negative("pose.scan_pinned_rad", o.scan_pinned_rad, std::f64::consts::PI)?;
         let e = &self.ekf;
         for (name, v) in [
             ("ekf.gyro_noise_rps", e.gyro_noise_rps),
@@ -118,6 +130,7 @@ impl LocalizeConfig {
         ] {
             non_negative(name, v, 1000.0)?;
         }
+        self.scan_match.validate().map_err(|e| e.within("scan_match"))?;
         self.sync.validate().map_err(|e| e.within("sync"))
     }
 }
@@ -143,5 +156,6 @@ mod tests {
         assert_eq!(with(&|c| c.corners.edge_max_angle_deg = 1.0).field, "corners.edge_max_angle_deg");
         assert_eq!(with(&|c| c.ekf.bias_walk = f64::INFINITY).field, "ekf.bias_walk");
         assert_eq!(with(&|c| c.sync.image_tolerance_s = -1.0).field, "sync.image_tolerance_s");
+        assert_eq!(with(&|c| c.scan_match.map_voxel_m = 0.0).field, "scan_match.map_voxel_m");
     }
 }

@@ -1,6 +1,7 @@
 //! Where a frame's 2D corners come from: the trained detector (the default),
 //! or, behind a flag, the ground-truth projections of `labels.json` with
-//! seeded pixel noise, to test the rest of the pipeline apart from the detector.
+//! seeded pixel noise, to test the rest of the pipeline apart from the detector;
+//! or none (the camera left out: LIDAR and odometry/IMU alone).
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -15,8 +16,17 @@ use rand::{RngExt, SeedableRng};
 use crate::error::Result;
 
 pub enum CornerSource {
-    Detector { detector: Box<Detector>, min_score: f32 },
-    Labels { by_image: HashMap<String, Vec<[f64; 2]>>, noise_px: f64, rng: Box<ChaCha8Rng> },
+    Detector {
+        detector: Box<Detector>,
+        min_score: f32,
+    },
+    Labels {
+        by_image: HashMap<String, Vec<[f64; 2]>>,
+        noise_px: f64,
+        rng: Box<ChaCha8Rng>,
+    },
+    /// The camera left out: every frame has no 2D corners.
+    Off,
 }
 
 impl CornerSource {
@@ -83,6 +93,7 @@ impl CornerSource {
                     .map(|&[x, y]| [x + *noise_px * gaussian(rng), y + *noise_px * gaussian(rng)])
                     .collect()),
             },
+            Self::Off => Err("camera left out".to_string()),
         };
         (found, start.elapsed().as_secs_f64() * 1e3)
     }

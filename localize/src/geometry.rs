@@ -8,7 +8,7 @@ use nalgebra::Point3;
 use crate::config::LocalizeConfig;
 use crate::corners::{CornerExtractor, CornerSet};
 use crate::error::{LocalizeError, Result};
-use crate::normals::{NormalEstimator, build_tree};
+use crate::normals::{NormalEstimator, PointNormal, build_tree};
 use crate::planes::{PlaneExtractor, PlaneSet};
 use crate::voxel::VoxelFilter;
 
@@ -23,6 +23,8 @@ pub struct GeometryStages {
 /// inlier indices refer to `points`, the (possibly down-sampled) cloud.
 pub struct Geometry {
     pub points: Vec<Point3<f32>>,
+    /// One per point of `points`.
+    pub normals: Vec<PointNormal>,
     pub planes: PlaneSet,
     pub corners: CornerSet,
     pub normals_ms: f64,
@@ -61,6 +63,6 @@ impl GeometryStages {
         let start = Instant::now();
         let corners = self.corners.extract(&planes, &points, &tree, sensor);
         let corners_ms = ms_since(start);
-        Ok(Geometry { points, planes, corners, normals_ms, planes_ms, corners_ms })
+        Ok(Geometry { points, normals, planes, corners, normals_ms, planes_ms, corners_ms })
     }
 }

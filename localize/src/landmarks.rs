@@ -23,7 +23,8 @@ impl Default for LandmarkConfig {
     }
 }
 
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Landmark {
     /// Mean of the observations.
     pub position: Vec3,

@@ -16,20 +16,23 @@ use crate::fusion::CornerFusion;
 use crate::geometry::{Geometry, GeometryStages};
 use crate::landmarks::LandmarkMap;
 use crate::plane_landmarks::{PlaneMap, RobotPlane};
+use crate::point_map::PointMap;
 use crate::pose::{Correspondence, PlaneCorrespondence, PlaneSigmas, PoseSolver};
+use crate::scan_match::{ScanFix, ScanMatcher, ScanPoints};
 
 /// How a frame's pose was obtained, written to the per-frame log.
 #[derive(Debug, Clone, PartialEq)]
 pub enum FrameStatus {
-    /// Corrected by this many corner and wall correspondences.
-    Fused { corners: usize, walls: usize },
+    /// Corrected by this many corner, wall and scan-to-map point
+    /// correspondences (0 scan points: no registration).
+    Fused { corners: usize, walls: usize, scan: usize },
     /// The first frame: the map starts at the reference pose.
     FirstFrame,
     /// Kept the odometry/IMU pose: too few corner and wall correspondences.
     TooFewMatches { corners: usize, walls: usize },
     /// No 2D corners (no image, or it failed): corrected by this many walls
-    /// alone, or (0) the odometry/IMU pose kept.
-    NoImage { why: String, walls: usize },
+    /// and scan points alone, or (both 0) the odometry/IMU pose kept.
+    NoImage { why: String, walls: usize, scan: usize },
     /// Kept the odometry/IMU pose: the cloud was unusable.
     BadCloud(String),
 }
@@ -37,13 +40,17 @@ pub enum FrameStatus {
 impl FrameStatus {
     pub fn label(&self) -> String {
         match self {
-            Self::Fused { corners, walls } => format!("fused: {corners} corners {walls} walls"),
+            Self::Fused { corners, walls, scan } => {
+                format!("fused: {corners} corners {walls} walls {scan} scan points")
+            }
             Self::FirstFrame => "first frame: map starts at the reference".into(),
             Self::TooFewMatches { corners, walls } => {
                 format!("fallback to odometry/IMU: only {corners} corners {walls} walls")
             }
-            Self::NoImage { why, walls: 0 } => format!("fallback to odometry/IMU: no 2D corners ({why})"),
-            Self::NoImage { why, walls } => format!("walls only: {walls} walls; no 2D corners ({why})"),
+            Self::NoImage { why, walls: 0, scan: 0 } => format!("fallback to odometry/IMU: no 2D corners ({why})"),
+            Self::NoImage { why, walls, scan } => {
+                format!("LIDAR only: {walls} walls {scan} scan points; no 2D corners ({why})")
+            }
             Self::BadCloud(why) => format!("fallback: bad cloud ({why})"),
         }
     }
@@ -61,12 +68,15 @@ pub struct FrameReport {
     pub matches: usize,
     pub correspondences: usize,
     pub plane_correspondences: usize,
+    /// Scan points registered against the point map (0: no registration).
+    pub scan_correspondences: usize,
     pub landmarks: usize,
     pub detect_ms: f64,
     pub normals_ms: f64,
     pub planes_ms: f64,
     pub corners_ms: f64,
     pub fusion_ms: f64,
+    pub scan_ms: f64,
     pub pose_ms: f64,
     pub total_ms: f64,
 }
@@ -84,12 +94,14 @@ impl FrameReport {
             matches: 0,
             correspondences: 0,
             plane_correspondences: 0,
+            scan_correspondences: 0,
             landmarks,
             detect_ms,
             normals_ms: 0.0,
             planes_ms: 0.0,
             corners_ms: 0.0,
             fusion_ms: 0.0,
+            scan_ms: 0.0,
             pose_ms: 0.0,
             total_ms: 0.0,
         }
@@ -137,21 +149,41 @@ pub struct Localizer {
     solver: PoseSolver,
     pub map: LandmarkMap,
     pub plane_map: PlaneMap,
+    scan_matcher: ScanMatcher,
+    pub point_map: PointMap,
     calibration: Calibration,
     frames_seen: usize,
+    /// The maps came from an earlier run: the first frame is corrected
+    /// against them rather than starting them.
+    given_map: bool,
 }
 
 impl Localizer {
     pub fn new(config: &LocalizeConfig, calibration: Calibration) -> Result<Self> {
+        let scan_matcher = ScanMatcher::new(config.scan_match.clone())?;
         Ok(Self {
             geometry: GeometryStages::new(config)?,
             fusion: CornerFusion::new(config.fusion.clone())?,
             solver: PoseSolver::new(config.pose.clone()),
             map: LandmarkMap::new(config.landmarks.clone()),
             plane_map: PlaneMap::new(config.plane_landmarks.clone()),
+            point_map: scan_matcher.new_map(),
+            scan_matcher,
             calibration,
             frames_seen: 0,
+            given_map: false,
         })
+    }
+
+    /// Starts from the maps an earlier run wrote (`map_output::read_map`).
+    /// Their world is that run's first robot pose: the new sequence must
+    /// start where that one did.
+    pub fn start_from_map(&mut self, map: crate::map_output::SavedMap) {
+        self.map.landmarks = map.corners;
+        self.plane_map.landmarks = map.walls;
+        let (points, normals): (Vec<Vec3>, Vec<Vec3>) = map.points.iter().map(|p| (p.position, p.normal)).unzip();
+        self.point_map.insert(&points, &normals, &Pose3::identity());
+        self.given_map = true;
     }
 
     /// The planes and 3D corners of a frame's cloud (or why there are none).
@@ -184,7 +216,7 @@ impl Localizer {
     ) -> FrameReport {
         let CameraCorners { pixels, lidar_from_camera, detect_ms } = camera;
         // The first frame anchors the maps at the reference pose.
-        let first = self.frames_seen == 0;
+        let first = self.frames_seen == 0 && !self.given_map;
         self.frames_seen += 1;
         let detections = pixels.as_ref().map_or(0, Vec::len);
         let mut report = FrameReport::new(stamp, ekf.pose(), detections, self.map.landmarks.len(), detect_ms);
@@ -199,11 +231,18 @@ impl Localizer {
         let planes = self.robot_planes(&geometry);
         let walls = self.plane_correspondences(&planes, &predicted);
         report.plane_correspondences = walls.len();
-        // Without 2D corners the walls alone correct the pose.
+        // The scan against the point map, from the predicted pose.
+        let scan_start = Instant::now();
+        let scan_points = self.scan_points(&geometry);
+        let scan = self.register(&scan_points, ekf);
+        report.scan_correspondences = scan.map_or(0, |s| s.correspondences);
+        report.scan_ms = elapsed_ms(scan_start);
+        // Without 2D corners the walls and the scan alone correct the pose.
         let pixels = match pixels {
             Ok(p) => p,
             Err(why) => {
-                let status = self.correct_with_walls_only(ekf, first, &planes, &walls, why);
+                let status = self.correct_without_corners(ekf, first, &planes, &walls, scan.as_ref(), why);
+                self.insert_scan(&scan_points, &ekf.pose());
                 return report.finish(ekf, status, started);
             }
         };
@@ -216,8 +255,9 @@ impl Localizer {
         report.fusion_ms = elapsed_ms(fusion_start);
         // Corners and walls correct the filter; the maps grow with what the corrected pose places.
         let pose_start = Instant::now();
-        let status = if first { FrameStatus::FirstFrame } else { self.correct(ekf, &corners, &walls) };
+        let status = if first { FrameStatus::FirstFrame } else { self.correct(ekf, &corners, &walls, scan.as_ref()) };
         self.grow_maps(&corners_in_robot, &planes, &ekf.pose());
+        self.insert_scan(&scan_points, &ekf.pose());
         report.pose_ms = elapsed_ms(pose_start);
         report.landmarks = self.map.landmarks.len();
         report.finish(ekf, status, started)
@@ -229,19 +269,44 @@ impl Localizer {
         geometry.planes.planes.iter().map(|p| RobotPlane::from_lidar(p, &robot_from_lidar)).collect()
     }
 
-    /// A frame without 2D corners: its walls correct the pose (except on the
-    /// first frame) and join the plane map.
-    fn correct_with_walls_only(
+    /// A frame without 2D corners: its walls and scan correct the pose
+    /// (except on the first frame) and its walls join the plane map.
+    fn correct_without_corners(
         &mut self,
         ekf: &mut Ekf,
         first: bool,
         planes: &[RobotPlane],
         walls: &[PlaneCorrespondence],
+        scan: Option<&ScanFix>,
         why: String,
     ) -> FrameStatus {
-        let corrected = !first && self.solver.correct_with_planes(ekf, &[], walls, self.plane_sigmas()).is_some();
+        let corrected = !first && self.solver.correct_with_planes(ekf, &[], walls, self.plane_sigmas(), scan).is_some();
         self.observe_planes(planes, &ekf.pose());
-        FrameStatus::NoImage { why, walls: if corrected { walls.len() } else { 0 } }
+        let (walls, scan) = if corrected { (walls.len(), scan.map_or(0, |s| s.correspondences)) } else { (0, 0) };
+        FrameStatus::NoImage { why, walls, scan }
+    }
+
+    /// The frame's planar points for scan matching (none when it is off).
+    fn scan_points(&self, geometry: &Geometry) -> ScanPoints {
+        if !self.scan_matcher.config().enabled {
+            return ScanPoints { points: Vec::new(), normals: Vec::new() };
+        }
+        let robot_from_lidar = &self.calibration.robot_from_lidar;
+        ScanPoints::select(self.scan_matcher.config(), &geometry.points, &geometry.normals, robot_from_lidar)
+    }
+
+    /// The scan registered against the point map from the filter's pose.
+    fn register(&self, scan: &ScanPoints, ekf: &Ekf) -> Option<ScanFix> {
+        if scan.points.is_empty() {
+            return None;
+        }
+        let x = &ekf.x;
+        let predicted = nalgebra::Vector6::new(x[0], x[1], x[2], x[3], x[4], x[5]);
+        self.scan_matcher.register(&self.point_map, scan, &predicted)
+    }
+
+    fn insert_scan(&mut self, scan: &ScanPoints, pose: &Pose3) {
+        self.point_map.insert(&scan.points, &scan.normals, pose);
     }
 
     /// The 2D corners matched to the cloud's 3D corners (in the robot frame)
@@ -278,11 +343,17 @@ impl Localizer {
         (in_robot, correspondences)
     }
 
-    /// Corrects the filter with corner and wall correspondences.
-    fn correct(&self, ekf: &mut Ekf, corners: &[Correspondence], walls: &[PlaneCorrespondence]) -> FrameStatus {
+    /// Corrects the filter with corner, wall and scan correspondences.
+    fn correct(
+        &self,
+        ekf: &mut Ekf,
+        corners: &[Correspondence],
+        walls: &[PlaneCorrespondence],
+        scan: Option<&ScanFix>,
+    ) -> FrameStatus {
         let (c, w) = (corners.len(), walls.len());
-        match self.solver.correct_with_planes(ekf, corners, walls, self.plane_sigmas()) {
-            Some(_) => FrameStatus::Fused { corners: c, walls: w },
+        match self.solver.correct_with_planes(ekf, corners, walls, self.plane_sigmas(), scan) {
+            Some(_) => FrameStatus::Fused { corners: c, walls: w, scan: scan.map_or(0, |s| s.correspondences) },
             None => FrameStatus::TooFewMatches { corners: c, walls: w },
         }
     }

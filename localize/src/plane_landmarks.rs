@@ -64,7 +64,8 @@ impl Default for PlaneLandmarkConfig {
 }
 
 /// A plane of the world: points p with normal . p = distance.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct PlaneLandmark {
     pub normal: Vec3,
     pub distance: f64,

@@ -7,11 +7,12 @@
 //! reference.
 
 use datasets::math::Vec3;
-use nalgebra::{DMatrix, DVector};
+use nalgebra::{DMatrix, DVector, Matrix6, Vector6};
 use serde::{Deserialize, Serialize};
 
 use crate::ekf::{Covariance, Ekf, STATES, State, pose_of};
 use crate::euler::{rotation, wrap};
+use crate::scan_match::ScanFix;
 use crate::similarity::umeyama;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -29,6 +30,14 @@ pub struct PoseConfig {
     /// Corrections move only the horizontal states (x, y, yaw, gyro z bias,
     /// wheel scale); height, roll and pitch stay the IMU's.
     pub horizontal_only: bool,
+    /// Directions of position (and attitude) that the frame's corners and
+    /// walls pin to better than this standard deviation are theirs: the
+    /// scan registration, which refers to a map the estimates themselves
+    /// placed and so drifts as odometry does, speaks only to the others (a
+    /// corridor's axis, a level without corners). 0: the registration
+    /// speaks to every direction.
+    pub scan_pinned_m: f64,
+    pub scan_pinned_rad: f64,
 }
 
 /// Height, roll, pitch, roll/pitch gyro biases and accelerometer biases.
@@ -43,6 +52,8 @@ impl Default for PoseConfig {
             min_matches: 2,
             seed_gate_m: 0.3,
             horizontal_only: false,
+            scan_pinned_m: 0.02,
+            scan_pinned_rad: 0.005,
         }
     }
 }
@@ -90,26 +101,31 @@ impl PoseSolver {
     /// Updates the filter with the correspondences; `None` (and the filter
     /// untouched) when there are too few.
     pub fn correct(&self, ekf: &mut Ekf, matches: &[Correspondence]) -> Option<PoseFix> {
-        self.correct_with_planes(ekf, matches, &[], PlaneSigmas { distance_m: 1.0, normal_rad: 1.0 })
+        self.correct_with_planes(ekf, matches, &[], PlaneSigmas { distance_m: 1.0, normal_rad: 1.0 }, None)
     }
 
-    /// As `correct`, with plane correspondences too; the frame needs
-    /// `min_matches` corners or at least three planes.
+    /// As `correct`, with plane correspondences and a scan-to-map
+    /// registration too; the frame needs `min_matches` corners, at least
+    /// three planes or the registration.
     pub fn correct_with_planes(
         &self,
         ekf: &mut Ekf,
         matches: &[Correspondence],
         planes: &[PlaneCorrespondence],
         plane_sigmas: PlaneSigmas,
+        scan: Option<&ScanFix>,
     ) -> Option<PoseFix> {
         let c = &self.config;
-        if matches.len() < c.min_matches.max(1) && planes.len() < 3 {
+        if matches.len() < c.min_matches.max(1) && planes.len() < 3 && scan.is_none() {
             return None;
         }
         let prior = ekf.x;
         let prior_cov = ekf.p;
         let mut x = self.seed(&prior, matches);
-        let blocks = Blocks { corners: matches, planes, corner_sigma: c.corner_sigma_m, plane_sigmas };
+        let landmarks = Blocks { corners: matches, planes, corner_sigma: c.corner_sigma_m, plane_sigmas, scan: None };
+        let scan =
+            scan.map(|fix| (fix, fix.whitening() * landmarks.unpinned(&prior, c.scan_pinned_m, c.scan_pinned_rad)));
+        let blocks = Blocks { scan, ..landmarks };
         let m = blocks.rows();
         let mut weights = vec![1.0; blocks.count()];
         let mut gain_h = Covariance::zeros();
@@ -205,24 +221,32 @@ impl PoseSolver {
 /// normal minus predicted normal). The vertical part of a wall's normal would
 /// tie pitch and roll to the small tilt biases of plane fits; gravity measures
 /// them better, and over a long route a pitch bias of 1 mrad is 3 cm of height.
+/// Last, 6 rows for a scan registration: its pose minus the state's,
+/// whitened by its information (so each row has unit deviation).
 struct Blocks<'a> {
     corners: &'a [Correspondence],
     planes: &'a [PlaneCorrespondence],
     corner_sigma: f64,
     plane_sigmas: PlaneSigmas,
+    scan: Option<(&'a ScanFix, Matrix6<f64>)>,
 }
 
 impl Blocks<'_> {
     fn count(&self) -> usize {
-        self.corners.len() + self.planes.len()
+        self.corners.len() + self.planes.len() + usize::from(self.scan.is_some())
+    }
+    fn scan_start(&self) -> usize {
+        3 * self.corners.len() + 3 * self.planes.len()
     }
     fn rows(&self) -> usize {
-        3 * self.corners.len() + 3 * self.planes.len()
+        self.scan_start() + if self.scan.is_some() { 6 } else { 0 }
     }
     /// (block index, standard deviation) of a residual row.
     fn row_info(&self, row: usize) -> (usize, f64) {
         let corner_rows = 3 * self.corners.len();
-        if row < corner_rows {
+        if row >= self.scan_start() {
+            (self.corners.len() + self.planes.len(), 1.0)
+        } else if row < corner_rows {
             (row / 3, self.corner_sigma)
         } else {
             let k = (row - corner_rows) / 3;
@@ -230,20 +254,23 @@ impl Blocks<'_> {
             (self.corners.len() + k, if first { self.plane_sigmas.distance_m } else { self.plane_sigmas.normal_rad })
         }
     }
-    /// Norm of a block's residual in standard deviations.
+    /// Norm of a block's residual in standard deviations, per three rows
+    /// (so that one Huber threshold serves the 6-row scan block too).
     fn normalised(&self, residual: &DVector<f64>, block: usize) -> f64 {
         let (start, len) = if block < self.corners.len() {
             (3 * block, 3)
-        } else {
+        } else if block < self.corners.len() + self.planes.len() {
             (3 * self.corners.len() + 3 * (block - self.corners.len()), 3)
+        } else {
+            (self.scan_start(), 6)
         };
-        (start..start + len)
+        let squares: f64 = (start..start + len)
             .map(|row| {
                 let (_, sigma) = self.row_info(row);
                 (residual[row] / sigma).powi(2)
             })
-            .sum::<f64>()
-            .sqrt()
+            .sum();
+        (squares * 3.0 / len as f64).sqrt()
     }
 
     fn predict(&self, x: &State) -> DVector<f64> {
@@ -261,7 +288,39 @@ impl Blocks<'_> {
             out[base + 3 * k + 1] = normal_gap.x;
             out[base + 3 * k + 2] = normal_gap.y;
         }
+        if let Some((fix, whitening)) = &self.scan {
+            let pose = Vector6::new(x[0], x[1], x[2], x[3], x[4], x[5]);
+            out.fixed_rows_mut::<6>(self.scan_start()).copy_from(&(whitening * fix.difference(&pose)));
+        }
         out
+    }
+
+    /// The projection onto the directions of position and of attitude
+    /// that these blocks pin to worse than `pinned_m` / `pinned_rad` at
+    /// `x` (position and attitude taken apart: their units differ).
+    fn unpinned(&self, x: &State, pinned_m: f64, pinned_rad: f64) -> Matrix6<f64> {
+        let (_, h) = self.linearise(x);
+        let mut information = Matrix6::zeros();
+        for row in 0..self.rows() {
+            let (_, sigma) = self.row_info(row);
+            let j = h.fixed_view::<1, 6>(row, 0);
+            information += j.transpose() * j / (sigma * sigma);
+        }
+        let mut projection = Matrix6::zeros();
+        for (start, pinned) in [(0, pinned_m), (3, pinned_rad)] {
+            let block: nalgebra::Matrix3<f64> = information.fixed_view::<3, 3>(start, start).into();
+            let eigen = block.symmetric_eigen();
+            let threshold = if pinned > 0.0 { 1.0 / (pinned * pinned) } else { f64::INFINITY };
+            let mut p = nalgebra::Matrix3::zeros();
+            for k in 0..3 {
+                if eigen.eigenvalues[k] < threshold {
+                    let v = eigen.eigenvectors.column(k);
+                    p += v * v.transpose();
+                }
+            }
+            projection.fixed_view_mut::<3, 3>(start, start).copy_from(&p);
+        }
+        projection
     }
 
     /// Residuals and their Jacobian with respect to the state (central

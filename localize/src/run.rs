@@ -30,6 +30,8 @@ pub struct RunResult {
     /// The maps at the end of the run.
     pub corner_landmarks: Vec<crate::landmarks::Landmark>,
     pub plane_landmarks: Vec<crate::plane_landmarks::PlaneLandmark>,
+    /// The point map's surface points (empty without scan matching).
+    pub point_map: Vec<crate::point_map::MapPoint>,
 }
 
 pub fn run_sequence(
@@ -38,9 +40,24 @@ pub fn run_sequence(
     config: &LocalizeConfig,
     show_progress: bool,
 ) -> Result<RunResult> {
+    run_sequence_in_map(sequence, source, config, None, show_progress)
+}
+
+/// As `run_sequence`, starting from the maps of an earlier run of the same
+/// building (which started where this sequence starts) when `map` is given.
+pub fn run_sequence_in_map(
+    sequence: &dyn SensorSequence,
+    source: &mut CornerSource,
+    config: &LocalizeConfig,
+    map: Option<crate::map_output::SavedMap>,
+    show_progress: bool,
+) -> Result<RunResult> {
     config.validate()?;
     let calibration = sequence.calibration().clone();
     let mut localizer = Localizer::new(config, calibration.clone())?;
+    if let Some(map) = map {
+        localizer.start_from_map(map);
+    }
     let stamps = sequence.frame_stamps();
     let Some(&start_time) = stamps.first() else {
         return Err(crate::error::LocalizeError::Recording("the recording has no LIDAR scans".into()));
@@ -64,6 +81,7 @@ pub fn run_sequence(
         frames: Vec::new(),
         corner_landmarks: Vec::new(),
         plane_landmarks: Vec::new(),
+        point_map: Vec::new(),
     };
     let mut unreadable: Vec<String> = Vec::new();
     let robot_from_camera = calibration.robot_from_camera();
@@ -125,6 +143,7 @@ pub fn run_sequence(
     }
     result.corner_landmarks = localizer.map.landmarks.clone();
     result.plane_landmarks = localizer.plane_map.landmarks.clone();
+    result.point_map = localizer.point_map.points().copied().collect();
     Ok(result)
 }
 
@@ -200,8 +219,8 @@ pub fn metrics(sequence: &dyn SensorSequence, result: &RunResult) -> Result<Opti
     }))
 }
 
-pub const FRAME_COLUMNS: &str = "timestamp,x,y,z,status,detections,planes,corners,matches,correspondences,plane_correspondences,landmarks,\
-detect_ms,normals_ms,planes_ms,corners_ms,fusion_ms,pose_ms,total_ms";
+pub const FRAME_COLUMNS: &str = "timestamp,x,y,z,status,detections,planes,corners,matches,correspondences,plane_correspondences,scan_correspondences,\
+landmarks,detect_ms,normals_ms,planes_ms,corners_ms,fusion_ms,scan_ms,pose_ms,total_ms";
 
 pub fn frames_csv(frames: &[FrameReport]) -> String {
     let mut out = String::from(FRAME_COLUMNS);
@@ -210,7 +229,7 @@ pub fn frames_csv(frames: &[FrameReport]) -> String {
         let t = f.pose.translation.vector;
         let _ = writeln!(
             out,
-            "{:.6},{:.4},{:.4},{:.4},{},{},{},{},{},{},{},{},{:.1},{:.1},{:.1},{:.1},{:.1},{:.1},{:.1}",
+            "{:.6},{:.4},{:.4},{:.4},{},{},{},{},{},{},{},{},{},{:.1},{:.1},{:.1},{:.1},{:.1},{:.1},{:.1},{:.1}",
             f.stamp,
             t.x,
             t.y,
@@ -222,12 +241,14 @@ pub fn frames_csv(frames: &[FrameReport]) -> String {
             f.matches,
             f.correspondences,
             f.plane_correspondences,
+            f.scan_correspondences,
             f.landmarks,
             f.detect_ms,
             f.normals_ms,
             f.planes_ms,
             f.corners_ms,
             f.fusion_ms,
+            f.scan_ms,
             f.pose_ms,
             f.total_ms
         );
@@ -236,8 +257,16 @@ pub fn frames_csv(frames: &[FrameReport]) -> String {
 }
 
 /// The files `localize run` writes into its output folder, and nothing else.
-pub const RUN_OUTPUTS: [&str; 6] =
-    ["trajectory.txt", "reference.txt", "frames.csv", "config.json", "trajectory.png", "metrics.json"];
+pub const RUN_OUTPUTS: [&str; 8] = [
+    "trajectory.txt",
+    "reference.txt",
+    "frames.csv",
+    "config.json",
+    "trajectory.png",
+    "metrics.json",
+    "map.ply",
+    "map.json",
+];
 
 /// Writes the run's outputs as one unit: the folder is filled beside its
 /// final name and then takes its place, so files of an earlier run never
@@ -258,6 +287,7 @@ pub fn write_outputs(
         datasets::atomic::write_bytes(&dir.join("frames.csv"), frames_csv(&result.frames).as_bytes())?;
         datasets::atomic::write_json(&dir.join("config.json"), config)?;
         crate::plot::write_trajectory_png(&dir.join("trajectory.png"), &result.trajectory, &result.reference, truth)?;
+        crate::map_output::write_map(dir, &result.point_map, &result.corner_landmarks, &result.plane_landmarks)?;
         if let Some(m) = metrics {
             datasets::atomic::write_json(&dir.join("metrics.json"), m)?;
         }

@@ -70,6 +70,8 @@ fn tables_carry_each_figure_in_its_unit() {
         distance_m: 29.95,
         fused: summary(0.003, 0.004, 0.012),
         odometry_imu: summary(0.1, 0.2, 0.2),
+        without_camera: summary(0.006, 0.008, 0.024),
+        without_scan_match: summary(0.0, 0.03, 0.04),
         corrected_frames: 590,
         ms_per_frame: 71.25,
         ap50: Some(0.81234),
@@ -86,6 +88,8 @@ fn tables_carry_each_figure_in_its_unit() {
     assert_eq!(cell("fused z"), "12.0");
     assert_eq!(cell("fused ATE"), "13.0");
     assert_eq!(cell("odom/IMU ATE"), "300.0");
+    assert_eq!(cell("without camera ATE"), "26.0");
+    assert_eq!(cell("without scan matching ATE"), "50.0");
     assert_eq!(cell("kiss-icp ATE"), "-");
     assert_eq!(cell("genz-icp y"), "30.0");
     assert_eq!(cell("genz-icp ATE"), "70.0");
@@ -98,6 +102,7 @@ fn tables_carry_each_figure_in_its_unit() {
     assert_eq!(header.len(), cells.len());
     let cell = |name: &str| cells[header.iter().position(|h| *h == name).unwrap_or_else(|| panic!("{name}"))];
     assert_eq!(cell("fused_ate"), "0.013000");
+    assert_eq!(cell("without_scan_match_ate"), "0.050000");
     assert_eq!(cell("kiss_icp_ate"), "");
     assert_eq!(cell("genz_icp_rmse_x"), "0.020000");
     assert_eq!(cell("ap50"), "0.8123");
@@ -106,10 +111,11 @@ fn tables_carry_each_figure_in_its_unit() {
 #[test]
 fn a_sequence_run_is_reused_only_when_what_made_it_is_the_same() {
     let dir = tempfile::tempdir().unwrap();
-    std::fs::create_dir(dir.path().join("run")).unwrap();
     let record = SequenceRecord {
         fused: summary(0.003, 0.004, 0.012),
         odometry_imu: summary(0.1, 0.2, 0.2),
+        without_camera: summary(0.006, 0.008, 0.024),
+        without_scan_match: summary(0.0, 0.03, 0.04),
         scans: 600,
         corrected_frames: 590,
         ms_per_frame: 71.25,
@@ -121,6 +127,6 @@ fn a_sequence_run_is_reused_only_when_what_made_it_is_the_same() {
     assert_eq!(SequenceRecord::read(dir.path(), &inputs), Some(record.clone()));
     let rebuilt = serde_json::json!({ "data": { "seed": 7 }, "made_by": { "program": "4567" }, "ap50": true });
     assert_eq!(SequenceRecord::read(dir.path(), &rebuilt), None, "another program redoes the run");
-    std::fs::write(dir.path().join("run/benchmark-run.json"), "{ \"inputs\": ").unwrap();
+    std::fs::write(dir.path().join("benchmark-run.json"), "{ \"inputs\": ").unwrap();
     assert_eq!(SequenceRecord::read(dir.path(), &inputs), None, "a torn record redoes the run");
 }

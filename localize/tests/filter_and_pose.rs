@@ -145,7 +145,7 @@ fn walls_alone_recover_position_and_heading() {
     ekf.p[(5, 5)] = 0.1f64.powi(2);
     let solver = PoseSolver::new(PoseConfig::default());
     solver
-        .correct_with_planes(&mut ekf, &[], &matches, PlaneSigmas { distance_m: 0.001, normal_rad: 0.001 })
+        .correct_with_planes(&mut ekf, &[], &matches, PlaneSigmas { distance_m: 0.001, normal_rad: 0.001 }, None)
         .expect("four walls");
     let pose = ekf.pose();
     let xy_error = (pose.translation.vector - truth.translation.vector).xy().norm();

@@ -87,7 +87,7 @@ impl Plan {
                 FineTune { backbone: Backbone::Alexnet, epochs: 40 },
             ],
             backend: CpuBackend::default(),
-            localize: LocalizeConfig::default(),
+            localize: LocalizeConfig::paper_estimator(),
         }
     }
 
@@ -110,7 +110,7 @@ impl Plan {
             },
             runs: BACKBONES.iter().map(|&backbone| FineTune { backbone, epochs: 2 }).collect(),
             backend: CpuBackend::default(),
-            localize: LocalizeConfig::default(),
+            localize: LocalizeConfig::paper_estimator(),
         }
     }
 

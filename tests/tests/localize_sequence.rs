@@ -4,7 +4,7 @@
 use datasets::generate::{DatagenConfig, generate};
 use localize::config::LocalizeConfig;
 use localize::corner_source::CornerSource;
-use localize::run::{metrics, run_sequence, write_outputs};
+use localize::run::{metrics, run_sequence, run_sequence_in_map, write_outputs};
 use localize::sequence::RecordedSequence;
 
 /// The package folder, read when the test runs (cargo sets it), so that a
@@ -45,6 +45,50 @@ fn fused_localization_beats_odometry_and_imu_on_a_generated_route() {
     }
     let (written, _) = datasets::formats::read_trajectory(&out.join("trajectory.txt")).unwrap();
     assert_eq!(written.len(), 30);
+    // The map: the point map and the corner landmarks, read back by the PLY reader.
+    let map = datasets::formats::read_ply(&out.join("map.ply"), datasets::formats::NonFinite::Reject).unwrap();
+    assert!(result.point_map.len() > 1000, "{} map points", result.point_map.len());
+    assert_eq!(map.len(), result.point_map.len() + result.corner_landmarks.len());
+    let first = result.point_map[0].position;
+    assert!((map.points[0].cast::<f64>().coords - first).norm() < 1e-5);
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("map.json")).unwrap()).unwrap();
+    assert_eq!(summary["points"], result.point_map.len());
+    assert_eq!(summary["walls"].as_array().unwrap().len(), result.plane_landmarks.len());
+    // The route again in that map: its first frame is placed by the map, not taken as the start.
+    let saved = localize::map_output::read_map(&out).unwrap();
+    assert_eq!(saved.points, result.point_map.iter().map(|p| round_to_f32(p)).collect::<Vec<_>>());
+    let again = run_sequence_in_map(&sequence, &mut CornerSource::Off, &config, Some(saved), false).unwrap();
+    assert!(again.frames[0].scan_correspondences >= 50, "{}", again.frames[0].status.label());
+    assert!(!matches!(again.frames[0].status, localize::pipeline::FrameStatus::FirstFrame));
+    let m = metrics(&sequence, &again).unwrap().unwrap();
+    assert!(m.fused.overall.ate_rmse < 0.05, "in the map, without the camera: ATE {} m", m.fused.overall.ate_rmse);
+}
+
+/// A map point as `map.ply` stores it (single precision).
+fn round_to_f32(p: &localize::point_map::MapPoint) -> localize::point_map::MapPoint {
+    localize::point_map::MapPoint {
+        position: p.position.map(|v| v as f32 as f64),
+        normal: p.normal.map(|v| v as f32 as f64),
+    }
+}
+
+#[test]
+fn without_the_camera_scan_matching_keeps_the_lidar_estimate_well_ahead_of_odometry() {
+    let dir = tempfile::tempdir().unwrap();
+    let sequence = short_sequence(dir.path(), 30);
+    let result = run_sequence(&sequence, &mut CornerSource::Off, &LocalizeConfig::default(), false).unwrap();
+    let m = metrics(&sequence, &result).unwrap().expect("ground truth is there");
+    let (fused, odometry) = (m.fused.overall, m.odometry_imu.overall);
+    assert!(fused.ate_rmse < odometry.ate_rmse / 2.0, "LIDAR {} vs odometry/IMU {}", fused.ate_rmse, odometry.ate_rmse);
+    // Every frame after the first registered against the point map.
+    for frame in &result.frames[1..] {
+        assert!(frame.scan_correspondences >= 50, "{:?}", frame.status);
+        assert!(frame.status.label().contains("camera left out"), "{}", frame.status.label());
+    }
+    // The paper's estimator has nothing but odometry/IMU and walls here.
+    let paper = run_sequence(&sequence, &mut CornerSource::Off, &LocalizeConfig::paper_estimator(), false).unwrap();
+    assert!(paper.frames.iter().all(|f| f.scan_correspondences == 0));
 }
 
 #[test]

@@ -12,7 +12,7 @@ use localize::corner_source::CornerSource;
 use localize::eval::{Alignment, ErrorSummary, compare};
 use localize::levels::LevelMap;
 use localize::pipeline::FrameStatus;
-use localize::run::{metrics, run_sequence, write_outputs};
+use localize::run::{metrics, run_sequence_in_map, write_outputs};
 use localize::sequence::{RecordedSequence, SensorSequence, WithTruth};
 
 #[derive(Parser)]
@@ -163,8 +163,16 @@ struct RunArgs {
     /// Instead of the detector, take the 2D corners from this COCO file's
     /// ground-truth points plus Gaussian noise (for testing the geometry apart
     /// from the detector; never the default).
-    #[arg(long)]
+    #[arg(long, conflicts_with = "without_camera")]
     corners_from_labels: Option<PathBuf>,
+    /// Leave the camera out: LIDAR (walls and scan-to-map registration) and
+    /// odometry/IMU alone.
+    #[arg(long)]
+    without_camera: bool,
+    /// Start from the map an earlier run wrote (its output folder, with
+    /// map.json and map.ply); this sequence must start where that run's did.
+    #[arg(long)]
+    map: Option<PathBuf>,
     #[arg(long, default_value_t = 2.0, value_parser = datasets::cli::non_negative)]
     label_noise_px: f64,
     #[arg(long, default_value_t = 1)]
@@ -441,10 +449,13 @@ fn run(args: &RunArgs) -> Result<()> {
         sequence = Box::new(WithTruth { inner: sequence, truth });
     }
     let mut source = match &args.corners_from_labels {
+        _ if args.without_camera => CornerSource::Off,
         Some(labels) => CornerSource::labels(labels, args.label_noise_px, args.seed)?,
         None => CornerSource::detector(&args.checkpoint, args.backend.device(), config.fusion.min_score)?,
     };
-    let result = run_sequence(&*sequence, &mut source, &config, !std::env::var("CI").is_ok_and(|v| v == "true"))?;
+    let map = args.map.as_deref().map(localize::map_output::read_map).transpose()?;
+    let progress = !std::env::var("CI").is_ok_and(|v| v == "true");
+    let result = run_sequence_in_map(&*sequence, &mut source, &config, map, progress)?;
     let metrics = metrics(&*sequence, &result)?;
     write_outputs(&args.out, &config, &result, sequence.ground_truth(), metrics.as_ref())?;
     println!("wrote {}", args.out.join("trajectory.txt").display());

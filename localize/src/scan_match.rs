@@ -1,0 +1,423 @@
+//! Scan-to-map registration: the frame's planar points aligned
+//! point-to-plane with the point map (Gauss-Newton from the predicted pose,
+//! Huber-weighted, re-associating each step), as KISS-ICP and GenZ-ICP
+//! register. The result is a pose measurement with its information matrix,
+//! which the pose solver weighs beside the corners and walls: a corridor
+//! that pins only two directions gives no information along the third.
+
+use datasets::InvalidSetting;
+use datasets::math::{Pose3, Vec3};
+use nalgebra::{Matrix6, Point3, SMatrix, Vector6};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::euler::{rotation, wrap};
+use crate::normals::PointNormal;
+use crate::point_map::PointMap;
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ScanMatchConfig {
+    /// Off: the pose comes from corners, walls and odometry/IMU alone (the
+    /// paper's estimator).
+    pub enabled: bool,
+    /// Edge of the point map's voxels; also the farthest a correspondence
+    /// may be searched.
+    pub map_voxel_m: f64,
+    pub points_per_voxel: usize,
+    /// A new map point closer than this to one in its voxel is skipped.
+    pub map_spacing_m: f64,
+    /// The frame's points are thinned to one per cube of this edge.
+    pub source_voxel_m: f64,
+    /// Only points this planar (surface variation) register or join the map.
+    pub max_curvature: f64,
+    /// Farthest a scan point may be from its map point.
+    pub max_distance_m: f64,
+    /// Largest angle between a scan point's normal and its map point's.
+    pub max_normal_angle_deg: f64,
+    pub iterations: usize,
+    /// Standard deviation of a point-to-plane residual; also the Huber
+    /// threshold's unit.
+    pub point_sigma_m: f64,
+    pub huber: f64,
+    /// Least standard deviations of a registered position and attitude,
+    /// added to what the points alone would give: the map was placed by
+    /// earlier estimates, so however many points agree, the registration is
+    /// no better than the map.
+    pub floor_m: f64,
+    pub floor_rad: f64,
+    /// The registration measures x, y and yaw only: height, roll and pitch
+    /// stay with gravity and the corners (a height registered against a map
+    /// the estimates placed drifts over ramps as odometry does).
+    pub horizontal_only: bool,
+    /// Fewer correspondences than this: no measurement.
+    pub min_correspondences: usize,
+}
+
+impl Default for ScanMatchConfig {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            map_voxel_m: 0.5,
+            points_per_voxel: 20,
+            map_spacing_m: 0.05,
+            source_voxel_m: 0.2,
+            max_curvature: 0.05,
+            max_distance_m: 0.3,
+            max_normal_angle_deg: 30.0,
+            iterations: 10,
+            point_sigma_m: 0.05,
+            huber: 2.0,
+            floor_m: 0.01,
+            floor_rad: 0.002,
+            horizontal_only: true,
+            min_correspondences: 50,
+        }
+    }
+}
+
+impl ScanMatchConfig {
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
+        let positive = |name: &str, v: f64, hi: f64| {
+            if v.is_finite() && v > 0.0 && v <= hi {
+                Ok(())
+            } else {
+                Err(InvalidSetting::field(name, format!("{v} outside (0, {hi}]")))
+            }
+        };
+        positive("map_voxel_m", self.map_voxel_m, 10.0)?;
+        positive("source_voxel_m", self.source_voxel_m, 10.0)?;
+        positive("max_curvature", self.max_curvature, 1.0)?;
+        positive("max_normal_angle_deg", self.max_normal_angle_deg, 180.0)?;
+        positive("point_sigma_m", self.point_sigma_m, 10.0)?;
+        positive("huber", self.huber, 1000.0)?;
+        positive("floor_m", self.floor_m, 10.0)?;
+        positive("floor_rad", self.floor_rad, 1.0)?;
+        if !(self.map_spacing_m.is_finite() && (0.0..=self.map_voxel_m).contains(&self.map_spacing_m)) {
+            return Err(InvalidSetting::field(
+                "map_spacing_m",
+                format!("{} outside [0, map_voxel_m]", self.map_spacing_m),
+            ));
+        }
+        // The map searches the 27 voxels around a point: no farther than one edge.
+        if !(self.max_distance_m > 0.0 && self.max_distance_m <= self.map_voxel_m) {
+            return Err(InvalidSetting::field(
+                "max_distance_m",
+                format!("{} outside (0, map_voxel_m = {}]", self.max_distance_m, self.map_voxel_m),
+            ));
+        }
+        let count = |name: &str, v: usize, lo: usize, hi: usize| {
+            if (lo..=hi).contains(&v) {
+                Ok(())
+            } else {
+                Err(InvalidSetting::field(name, format!("{v} outside {lo}..={hi}")))
+            }
+        };
+        count("points_per_voxel", self.points_per_voxel, 1, 10_000)?;
+        count("iterations", self.iterations, 1, 1000)?;
+        count("min_correspondences", self.min_correspondences, 6, 10_000_000)
+    }
+}
+
+/// A frame's surface points in the robot frame, thinned, with their normals.
+pub struct ScanPoints {
+    pub points: Vec<Vec3>,
+    pub normals: Vec<Vec3>,
+}
+
+impl ScanPoints {
+    /// The planar points of a cloud (sensor frame, with its normals), one
+    /// per `source_voxel_m` cube (the first seen), in the robot frame.
+    pub fn select(
+        config: &ScanMatchConfig,
+        points: &[Point3<f32>],
+        normals: &[PointNormal],
+        robot_from_lidar: &Pose3,
+    ) -> Self {
+        let mut seen = rustc_hash::FxHashSet::default();
+        let (mut out_points, mut out_normals) = (Vec::new(), Vec::new());
+        for (p, n) in points.iter().zip(normals) {
+            if n.curvature > config.max_curvature || !n.normal.iter().all(|v| v.is_finite()) {
+                continue;
+            }
+            let p = p.cast::<f64>();
+            let key = (p.coords / config.source_voxel_m).map(|v| v.floor() as i64);
+            if !seen.insert([key.x, key.y, key.z]) {
+                continue;
+            }
+            out_points.push((robot_from_lidar * p).coords);
+            out_normals.push(robot_from_lidar.rotation * n.normal);
+        }
+        Self { points: out_points, normals: out_normals }
+    }
+}
+
+/// A registration: the pose (x, y, z, roll, pitch, yaw; world from robot)
+/// and its information matrix in those coordinates.
+#[derive(Debug, Clone, Copy)]
+pub struct ScanFix {
+    pub pose: Vector6<f64>,
+    pub information: Matrix6<f64>,
+    pub correspondences: usize,
+    /// Root mean square of the inliers' point-to-plane distances.
+    pub rms_m: f64,
+}
+
+impl ScanFix {
+    /// The residual rows whose squares sum to the Mahalanobis distance:
+    /// sqrt(information) (pose - x).
+    pub fn whitening(&self) -> Matrix6<f64> {
+        let eigen = self.information.symmetric_eigen();
+        let root = Matrix6::from_diagonal(&eigen.eigenvalues.map(|v| v.max(0.0).sqrt()));
+        root * eigen.eigenvectors.transpose()
+    }
+
+    /// The pose difference `self.pose - x` with angles wrapped.
+    pub fn difference(&self, x: &Vector6<f64>) -> Vector6<f64> {
+        let mut d = self.pose - x;
+        for k in 3..6 {
+            d[k] = wrap(d[k]);
+        }
+        d
+    }
+}
+
+pub struct ScanMatcher {
+    config: ScanMatchConfig,
+}
+
+/// One correspondence: its point-to-plane residual and Jacobian row.
+type Term = (f64, SMatrix<f64, 1, 6>);
+
+impl ScanMatcher {
+    pub fn new(config: ScanMatchConfig) -> Result<Self, InvalidSetting> {
+        config.validate().map_err(|e| e.within("scan_match"))?;
+        Ok(Self { config })
+    }
+
+    pub fn config(&self) -> &ScanMatchConfig {
+        &self.config
+    }
+
+    pub fn new_map(&self) -> PointMap {
+        let c = &self.config;
+        PointMap::new(c.map_voxel_m, c.points_per_voxel, c.map_spacing_m)
+    }
+
+    /// Registers `scan` against `map` from `initial` (x, y, z, roll, pitch,
+    /// yaw); `None` with too few correspondences or a singular system.
+    pub fn register(&self, map: &PointMap, scan: &ScanPoints, initial: &Vector6<f64>) -> Option<ScanFix> {
+        let c = &self.config;
+        if map.is_empty() {
+            return None;
+        }
+        let cos_gate = c.max_normal_angle_deg.to_radians().cos();
+        let mut x = *initial;
+        for _ in 0..c.iterations {
+            let terms = self.terms(map, scan, &x, cos_gate);
+            if terms.len() < c.min_correspondences {
+                return None;
+            }
+            let (h, g) = self.normal_equations(&terms);
+            let step = solve_observable(&h, &g)?;
+            x += step;
+            for k in 3..6 {
+                x[k] = wrap(x[k]);
+            }
+            if step.fixed_rows::<3>(0).norm() < 1e-4 && step.fixed_rows::<3>(3).norm() < 1e-5 {
+                break;
+            }
+        }
+        let terms = self.terms(map, scan, &x, cos_gate);
+        if terms.len() < c.min_correspondences {
+            return None;
+        }
+        let (h, _) = self.normal_equations(&terms);
+        let mut information = self.with_floor(&(h / (c.point_sigma_m * c.point_sigma_m)));
+        if c.horizontal_only {
+            let keep = Matrix6::from_diagonal(&Vector6::new(1.0, 1.0, 0.0, 0.0, 0.0, 1.0));
+            information = keep * information * keep;
+        }
+        let inlier_gate = c.huber * c.point_sigma_m;
+        let inliers: Vec<f64> = terms.iter().map(|t| t.0).filter(|r| r.abs() <= inlier_gate).collect();
+        let rms_m = (inliers.iter().map(|r| r * r).sum::<f64>() / inliers.len().max(1) as f64).sqrt();
+        Some(ScanFix { pose: x, information, correspondences: terms.len(), rms_m })
+    }
+
+    /// Each scan point's residual and Jacobian at `x` against the plane of
+    /// its nearest map point, when one is close enough and the plane faces
+    /// the way the point's own surface does (within the angle gate; the two
+    /// sides of a thin wall face apart).
+    fn terms(&self, map: &PointMap, scan: &ScanPoints, x: &Vector6<f64>, cos_gate: f64) -> Vec<Term> {
+        let t = Vec3::new(x[0], x[1], x[2]);
+        let r = rotation(x[3], x[4], x[5]).to_rotation_matrix().into_inner();
+        // d R / d angle, by central differences (the angles are Euler ZYX).
+        let e = 1e-6;
+        let derivative = |k: usize| {
+            let (mut plus, mut minus) = (*x, *x);
+            plus[3 + k] += e;
+            minus[3 + k] -= e;
+            let at = |v: &Vector6<f64>| rotation(v[3], v[4], v[5]).to_rotation_matrix().into_inner();
+            (at(&plus) - at(&minus)) / (2.0 * e)
+        };
+        let dr = [derivative(0), derivative(1), derivative(2)];
+        scan.points
+            .par_iter()
+            .zip(&scan.normals)
+            .filter_map(|(p, n)| {
+                let q = t + r * p;
+                let m = map.nearest_plane(&q, self.config.max_distance_m)?;
+                if m.normal.dot(&(r * n)) < cos_gate {
+                    return None;
+                }
+                let residual = m.normal.dot(&(q - m.centroid));
+                let mut jacobian = SMatrix::<f64, 1, 6>::zeros();
+                for k in 0..3 {
+                    jacobian[k] = m.normal[k];
+                    jacobian[3 + k] = m.normal.dot(&(dr[k] * p));
+                }
+                Some((residual, jacobian))
+            })
+            .collect()
+    }
+
+    /// The information of the points' covariance plus the floor's:
+    /// (L^-1 + F)^-1 = L (I + F L)^-1, defined where L is singular too.
+    fn with_floor(&self, information: &Matrix6<f64>) -> Matrix6<f64> {
+        let (m, r) = (self.config.floor_m.powi(2), self.config.floor_rad.powi(2));
+        let floor = Matrix6::from_diagonal(&Vector6::new(m, m, m, r, r, r));
+        let Some(inverse) = (Matrix6::identity() + floor * information).try_inverse() else {
+            return Matrix6::zeros();
+        };
+        let out = information * inverse;
+        0.5 * (out + out.transpose())
+    }
+
+    /// Huber-weighted J'WJ and J'Wr.
+    fn normal_equations(&self, terms: &[Term]) -> (Matrix6<f64>, Vector6<f64>) {
+        let threshold = self.config.huber * self.config.point_sigma_m;
+        let mut h = Matrix6::zeros();
+        let mut g = Vector6::zeros();
+        for (r, j) in terms {
+            let w = if r.abs() <= threshold { 1.0 } else { threshold / r.abs() };
+            h += w * j.transpose() * j;
+            g += w * j.transpose() * *r;
+        }
+        (h, g)
+    }
+}
+
+/// The Gauss-Newton step -H^-1 g within the directions the points observe:
+/// a corridor leaves its axis where the prediction put it.
+fn solve_observable(h: &Matrix6<f64>, g: &Vector6<f64>) -> Option<Vector6<f64>> {
+    let eigen = h.symmetric_eigen();
+    let largest = eigen.eigenvalues.max();
+    if !(largest > 0.0) {
+        return None;
+    }
+    let mut step = Vector6::zeros();
+    for k in 0..6 {
+        let value = eigen.eigenvalues[k];
+        if value > 1e-9 * largest {
+            let v = eigen.eigenvectors.column(k);
+            step -= v * (v.dot(g) / value);
+        }
+    }
+    Some(step)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::rngs::ChaCha8Rng;
+    use rand::{RngExt, SeedableRng};
+
+    /// Points on the floor, the ceiling and four walls of a 6 x 4 x 3 m room
+    /// with a 1 m box in a corner (so no direction slides), robot frame at
+    /// the room's centre, with normals.
+    fn room(rng: &mut ChaCha8Rng) -> ScanPoints {
+        let (mut points, mut normals) = (Vec::new(), Vec::new());
+        let mut face = |n: Vec3, at: &dyn Fn(f64, f64) -> Vec3, count: usize| {
+            for _ in 0..count {
+                let (u, v) = (rng.random_range(0.0..1.0), rng.random_range(0.0..1.0));
+                points.push(at(u, v));
+                normals.push(n);
+            }
+        };
+        face(Vec3::z(), &|u, v| Vec3::new(-3.0 + 6.0 * u, -2.0 + 4.0 * v, -1.0), 600);
+        face(-Vec3::z(), &|u, v| Vec3::new(-3.0 + 6.0 * u, -2.0 + 4.0 * v, 2.0), 600);
+        face(Vec3::x(), &|u, v| Vec3::new(-3.0, -2.0 + 4.0 * u, -1.0 + 3.0 * v), 400);
+        face(-Vec3::x(), &|u, v| Vec3::new(3.0, -2.0 + 4.0 * u, -1.0 + 3.0 * v), 400);
+        face(Vec3::y(), &|u, v| Vec3::new(-3.0 + 6.0 * u, -2.0, -1.0 + 3.0 * v), 400);
+        face(-Vec3::y(), &|u, v| Vec3::new(-3.0 + 6.0 * u, 2.0, -1.0 + 3.0 * v), 400);
+        face(-Vec3::x(), &|u, v| Vec3::new(2.0, 1.0 + u, -1.0 + v), 200);
+        face(-Vec3::y(), &|u, v| Vec3::new(2.0 + u, 1.0, -1.0 + v), 200);
+        ScanPoints { points, normals }
+    }
+
+    fn pose_vector(pose: &Pose3) -> Vector6<f64> {
+        let (roll, pitch, yaw) = pose.rotation.euler_angles();
+        let t = pose.translation.vector;
+        Vector6::new(t.x, t.y, t.z, roll, pitch, yaw)
+    }
+
+    #[test]
+    fn a_room_seen_from_a_moved_pose_registers_back_to_that_pose() {
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let matcher = ScanMatcher::new(ScanMatchConfig::default()).unwrap();
+        let mut map = matcher.new_map();
+        let first = room(&mut rng);
+        map.insert(&first.points, &first.normals, &Pose3::identity());
+        // The robot moved; the scan is the room in its new frame.
+        let truth = Pose3::new(Vec3::new(0.25, -0.15, 0.03), Vec3::new(0.01, -0.02, 0.12));
+        let seen = room(&mut rng);
+        let inverse = truth.inverse();
+        let scan = ScanPoints {
+            points: seen.points.iter().map(|p| (inverse * Point3::from(*p)).coords).collect(),
+            normals: seen.normals.iter().map(|n| inverse.rotation * n).collect(),
+        };
+        let fix = matcher.register(&map, &scan, &Vector6::zeros()).expect("a closed room registers");
+        let error = fix.difference(&pose_vector(&truth));
+        assert!(error.fixed_rows::<3>(0).norm() < 2e-3, "translation off by {error:?}");
+        assert!(error.fixed_rows::<3>(3).norm() < 1e-3, "rotation off by {error:?}");
+        // Exact surfaces; the residue is where a voxel straddles an edge of the room or the box.
+        assert!(fix.rms_m < 3e-3 && fix.correspondences > 2000, "{fix:?}");
+        // Height, roll and pitch are left to gravity and the corners.
+        assert_eq!(fix.information.row(2).norm() + fix.information.column(4).norm(), 0.0);
+        // The whitening squares back to the information.
+        let w = fix.whitening();
+        assert!((w.transpose() * w - fix.information).norm() < 1e-6 * fix.information.norm());
+    }
+
+    #[test]
+    fn a_corridor_gives_no_information_along_its_axis() {
+        // Two walls and a floor along x: x cannot be measured.
+        let mut rng = ChaCha8Rng::seed_from_u64(12);
+        let (mut points, mut normals) = (Vec::new(), Vec::new());
+        for _ in 0..1500 {
+            let u = rng.random_range(-5.0..5.0);
+            let v = rng.random_range(0.0..1.0);
+            points.extend([Vec3::new(u, -1.0, v), Vec3::new(u, 1.0, v), Vec3::new(u, 2.0 * v - 1.0, -0.5)]);
+            normals.extend([Vec3::y(), -Vec3::y(), Vec3::z()]);
+        }
+        let scan = ScanPoints { points, normals };
+        let matcher = ScanMatcher::new(ScanMatchConfig::default()).unwrap();
+        let mut map = matcher.new_map();
+        map.insert(&scan.points, &scan.normals, &Pose3::identity());
+        let fix = matcher.register(&map, &scan, &Vector6::new(0.1, 0.05, 0.0, 0.0, 0.0, 0.0)).unwrap();
+        assert!(fix.pose[1].abs() < 2e-3, "y is pinned by the walls: {}", fix.pose[1]);
+        assert!(fix.information[(0, 0)] < 1e-6 * fix.information[(1, 1)], "x: {}", fix.information);
+    }
+
+    #[test]
+    fn settings_out_of_range_are_named() {
+        let bad = |f: &dyn Fn(&mut ScanMatchConfig)| {
+            let mut c = ScanMatchConfig::default();
+            f(&mut c);
+            ScanMatcher::new(c).err().expect("refused").field
+        };
+        assert_eq!(bad(&|c| c.max_distance_m = 0.8), "scan_match.max_distance_m");
+        assert_eq!(bad(&|c| c.point_sigma_m = f64::NAN), "scan_match.point_sigma_m");
+        assert_eq!(bad(&|c| c.min_correspondences = 2), "scan_match.min_correspondences");
+    }
+}
