@@ -57,7 +57,7 @@ fn fused_localization_beats_odometry_and_imu_on_a_generated_route() {
     assert_eq!(summary["walls"].as_array().unwrap().len(), result.plane_landmarks.len());
     // The route again in that map: its first frame is placed by the map, not taken as the start.
     let saved = localize::map_output::read_map(&out).unwrap();
-    assert_eq!(saved.points, result.point_map.iter().map(|p| round_to_f32(p)).collect::<Vec<_>>());
+    assert_eq!(saved.points, result.point_map.iter().map(round_to_f32).collect::<Vec<_>>());
     let again = run_sequence_in_map(&sequence, &mut CornerSource::Off, &config, Some(saved), false).unwrap();
     assert!(again.frames[0].scan_correspondences >= 50, "{}", again.frames[0].status.label());
     assert!(!matches!(again.frames[0].status, localize::pipeline::FrameStatus::FirstFrame));
