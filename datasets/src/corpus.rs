@@ -84,6 +84,7 @@ impl CorpusConfig {
             ramp_slope_deg: lerp(3, 6.0, 14.0),
             ceiling_height_m: top + lerp(4, 2.2, 3.2),
             corridor_width_m: lerp(5, 1.8, 3.0),
+            corridor_m: 0.0,
         }
     }
 }

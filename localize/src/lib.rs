@@ -29,6 +29,7 @@ pub mod point_map;
 pub mod pose;
 pub mod run;
 pub mod scan_match;
+pub mod sensor_faults;
 pub mod sensor_replay;
 pub mod sequence;
 pub mod similarity;

@@ -60,6 +60,8 @@ impl FrameStatus {
 #[derive(Debug, Clone)]
 pub struct FrameReport {
     pub stamp: f64,
+    /// Seconds since the previous scan (0 for the first): a LIDAR gap shows here.
+    pub scan_gap_s: f64,
     pub pose: Pose3,
     pub status: FrameStatus,
     pub detections: usize,
@@ -83,9 +85,10 @@ pub struct FrameReport {
 
 impl FrameReport {
     /// A frame's report before its stages ran: the pose is the filter's.
-    fn new(stamp: f64, pose: Pose3, detections: usize, landmarks: usize, detect_ms: f64) -> Self {
+    fn new(stamp: f64, scan_gap_s: f64, pose: Pose3, detections: usize, landmarks: usize, detect_ms: f64) -> Self {
         Self {
             stamp,
+            scan_gap_s,
             pose,
             status: FrameStatus::FirstFrame,
             detections,
@@ -153,6 +156,7 @@ pub struct Localizer {
     pub point_map: PointMap,
     calibration: Calibration,
     frames_seen: usize,
+    last_stamp: Option<f64>,
     /// The maps came from an earlier run: the first frame is corrected
     /// against them rather than starting them.
     given_map: bool,
@@ -171,6 +175,7 @@ impl Localizer {
             scan_matcher,
             calibration,
             frames_seen: 0,
+            last_stamp: None,
             given_map: false,
         })
     }
@@ -218,8 +223,11 @@ impl Localizer {
         // The first frame anchors the maps at the reference pose.
         let first = self.frames_seen == 0 && !self.given_map;
         self.frames_seen += 1;
+        let scan_gap_s = self.last_stamp.map_or(0.0, |t| stamp - t);
+        self.last_stamp = Some(stamp);
         let detections = pixels.as_ref().map_or(0, Vec::len);
-        let mut report = FrameReport::new(stamp, ekf.pose(), detections, self.map.landmarks.len(), detect_ms);
+        let mut report =
+            FrameReport::new(stamp, scan_gap_s, ekf.pose(), detections, self.map.landmarks.len(), detect_ms);
         // Without the cloud's planes and corners the filter's pose stands.
         let geometry = match geometry {
             Ok(g) => g,

@@ -219,7 +219,17 @@ pub fn metrics(sequence: &dyn SensorSequence, result: &RunResult) -> Result<Opti
     }))
 }
 
-pub const FRAME_COLUMNS: &str = "timestamp,x,y,z,status,detections,planes,corners,matches,correspondences,plane_correspondences,scan_correspondences,\
+/// The longest time between two scans and the scan that ended it, when it
+/// is more than three times the typical (median) time: a LIDAR gap.
+pub fn longest_scan_gap(frames: &[FrameReport]) -> Option<(f64, f64)> {
+    let mut gaps: Vec<f64> = frames.iter().skip(1).map(|f| f.scan_gap_s).collect();
+    gaps.sort_by(f64::total_cmp);
+    let typical = *gaps.get(gaps.len() / 2)?;
+    let longest = frames.iter().skip(1).max_by(|a, b| a.scan_gap_s.total_cmp(&b.scan_gap_s))?;
+    (longest.scan_gap_s > 3.0 * typical).then_some((longest.scan_gap_s, longest.stamp))
+}
+
+pub const FRAME_COLUMNS: &str = "timestamp,scan_gap_s,x,y,z,status,detections,planes,corners,matches,correspondences,plane_correspondences,scan_correspondences,\
 landmarks,detect_ms,normals_ms,planes_ms,corners_ms,fusion_ms,scan_ms,pose_ms,total_ms";
 
 pub fn frames_csv(frames: &[FrameReport]) -> String {
@@ -229,8 +239,9 @@ pub fn frames_csv(frames: &[FrameReport]) -> String {
         let t = f.pose.translation.vector;
         let _ = writeln!(
             out,
-            "{:.6},{:.4},{:.4},{:.4},{},{},{},{},{},{},{},{},{},{:.1},{:.1},{:.1},{:.1},{:.1},{:.1},{:.1},{:.1}",
+            "{:.6},{:.3},{:.4},{:.4},{:.4},{},{},{},{},{},{},{},{},{},{:.1},{:.1},{:.1},{:.1},{:.1},{:.1},{:.1},{:.1}",
             f.stamp,
+            f.scan_gap_s,
             t.x,
             t.y,
             t.z,

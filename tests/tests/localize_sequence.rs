@@ -92,6 +92,66 @@ fn without_the_camera_scan_matching_keeps_the_lidar_estimate_well_ahead_of_odome
 }
 
 #[test]
+fn a_lidar_blackout_and_a_camera_that_stops_leave_the_run_going_and_bounded() {
+    use localize::sensor_faults::{SensorFaults, WithFaults};
+    let dir = tempfile::tempdir().unwrap();
+    let sequence = short_sequence(dir.path(), 30);
+    let labels = dir.path().join("sequence/labels.json");
+    let faults = SensorFaults { lidar_gaps: vec![[8.0, 14.0]], camera_stop_s: Some(20.0) };
+    let faulty = WithFaults { inner: Box::new(sequence), faults };
+    let mut corners = CornerSource::labels(&labels, 2.0, 1).unwrap();
+    let result = run_sequence(&faulty, &mut corners, &LocalizeConfig::default(), false).unwrap();
+    // One scan a second: those at 8..13 s are lost, the run goes on after them.
+    assert_eq!(result.frames.len(), 24);
+    let after = result.frames.iter().find(|f| f.stamp > 7.5).unwrap();
+    assert!((after.stamp - 14.0).abs() < 1e-9 && (after.scan_gap_s - 7.0).abs() < 1e-9, "{after:?}");
+    assert_eq!(localize::run::longest_scan_gap(&result.frames), Some((after.scan_gap_s, after.stamp)));
+    assert!(matches!(after.status, localize::pipeline::FrameStatus::Fused { .. }), "{}", after.status.label());
+    // From 20 s on, no image: LIDAR only, and frames.csv says why.
+    for frame in &result.frames {
+        let stopped = frame.status.label().contains("camera stopped");
+        assert_eq!(stopped, frame.stamp >= 20.0, "{} at {}", frame.status.label(), frame.stamp);
+    }
+    let csv = localize::run::frames_csv(&result.frames);
+    assert!(csv.lines().any(|l| l.starts_with("14.000000,7.000,")), "{csv}");
+    // The error stays well within the odometry/IMU's.
+    let m = metrics(&faulty, &result).unwrap().expect("ground truth is there");
+    let (fused, odometry) = (m.fused.overall, m.odometry_imu.overall);
+    assert!(fused.ate_rmse < odometry.ate_rmse / 2.0, "fused {} vs odometry/IMU {}", fused.ate_rmse, odometry.ate_rmse);
+}
+
+#[test]
+fn in_a_long_featureless_corridor_the_run_stays_within_the_odometry_and_imu() {
+    let dir = tempfile::tempdir().unwrap();
+    // 30 m of corridor seen by a 20 m LIDAR: in its middle neither end is in range.
+    let mut config = DatagenConfig::for_corridor(30.0);
+    config.detection.images = 2;
+    config.detection.train = 1;
+    config.sequence.rate_hz = 2.0;
+    config.sequence.camera_rate_hz = None;
+    config.sequence.camera_delay_s = 0.0;
+    config.lidar.max_range_m = 20.0;
+    generate(dir.path(), &config).unwrap();
+    let sequence = RecordedSequence::open(&dir.path().join("sequence")).unwrap();
+    let mut corners = CornerSource::labels(&dir.path().join("sequence/labels.json"), 2.0, 1).unwrap();
+    let result = run_sequence(&sequence, &mut corners, &LocalizeConfig::default(), false).unwrap();
+    assert!(result.frames.len() > 50, "{} frames", result.frames.len());
+    // Every frame after the first is corrected by scan points, and by walls
+    // once the wall landmarks are trusted.
+    for frame in &result.frames[1..] {
+        assert!(frame.scan_correspondences >= 50, "{}", frame.status.label());
+        assert!(frame.plane_correspondences >= 2 || frame.stamp < 3.0, "{}", frame.status.label());
+    }
+    let m = metrics(&sequence, &result).unwrap().expect("ground truth is there");
+    let (fused, odometry) = (m.fused.overall, m.odometry_imu.overall);
+    // Along the corridor no better than the wheels can be asked for, but
+    // never worse; across it, the walls hold it.
+    assert!(fused.rmse_x <= odometry.rmse_x, "x: fused {} vs odometry/IMU {}", fused.rmse_x, odometry.rmse_x);
+    assert!(fused.rmse_y < 0.02 && fused.rmse_y < odometry.rmse_y / 5.0, "y: {} vs {}", fused.rmse_y, odometry.rmse_y);
+    assert!(fused.ate_rmse < odometry.ate_rmse, "fused {} vs odometry/IMU {}", fused.ate_rmse, odometry.ate_rmse);
+}
+
+#[test]
 fn the_shipped_detectors_run_inside_localization() {
     let dir = tempfile::tempdir().unwrap();
     let sequence = short_sequence(dir.path(), 4);

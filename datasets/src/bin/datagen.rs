@@ -28,6 +28,11 @@ struct Args {
     /// odometry, 200 Hz IMU, 1 m/s) unless --config sets its own.
     #[arg(long)]
     building: Option<u32>,
+    /// Instead of a building, one straight featureless corridor this many
+    /// metres long (the hard case of LIDAR odometry), with a generated
+    /// building's robot timing unless --config sets its own.
+    #[arg(long, value_name = "METRES", conflicts_with = "building")]
+    corridor: Option<f64>,
     /// Scans of the sequence (default: the whole route once, at most 3000 scans in a generated building).
     #[arg(long)]
     frames: Option<usize>,
@@ -60,10 +65,16 @@ fn run_main() -> Result<()> {
             serde_json::from_str::<DatagenConfig>(&text)
                 .with_context(|| format!("{}: invalid settings", path.display()))?
         }
-        None => DatagenConfig::for_building(args.building.unwrap_or(0)),
+        None => match args.corridor {
+            Some(length) => DatagenConfig::for_corridor(length),
+            None => DatagenConfig::for_building(args.building.unwrap_or(0)),
+        },
     };
     if let Some(building) = args.building {
         config.world.building = building;
+    }
+    if let Some(length) = args.corridor {
+        config.world.corridor_m = length;
     }
     if let Some(seed) = args.seed {
         config.seed = seed;

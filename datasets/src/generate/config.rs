@@ -116,6 +116,15 @@ impl DatagenConfig {
         config.motion.ramp_slip = 0.03;
         config
     }
+
+    /// The long featureless corridor (`WorldConfig::corridor_m`) with a
+    /// generated building's robot timing.
+    pub fn for_corridor(length_m: f64) -> Self {
+        let mut config = Self::for_building(1);
+        config.world.building = 0;
+        config.world.corridor_m = length_m;
+        config
+    }
 }
 
 impl DatagenConfig {

@@ -27,8 +27,16 @@ pub struct WorldConfig {
     pub ramp_slope_deg: f64,
     /// Height of the (single, flat) ceiling above the level-1 floor.
     pub ceiling_height_m: f64,
-    /// Width of the corridors that hold the ramps.
+    /// Width of the corridors that hold the ramps (and of the long corridor).
     pub corridor_width_m: f64,
+    /// Above 0: instead of a building, one straight featureless corridor
+    /// this long (`corridor.rs`), level 1's floor, `corridor_width_m` wide.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub corridor_m: f64,
+}
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
 }
 
 impl Default for WorldConfig {
@@ -39,6 +47,7 @@ impl Default for WorldConfig {
             ramp_slope_deg: 10.0,
             ceiling_height_m: 3.5,
             corridor_width_m: 2.2,
+            corridor_m: 0.0,
         }
     }
 }
@@ -48,6 +57,15 @@ impl WorldConfig {
         if self.building > super::building::MAX_BUILDING {
             let problem = format!("{} outside 0..={}", self.building, super::building::MAX_BUILDING);
             return Err(InvalidSetting::field("building", problem));
+        }
+        if self.corridor_m != 0.0 {
+            if !(10.0..=1000.0).contains(&self.corridor_m) {
+                return Err(InvalidSetting::field("corridor_m", format!("{} m outside [10, 1000]", self.corridor_m)));
+            }
+            if self.building != 0 {
+                let problem = format!("a corridor is a world of its own; building is {}, must be 0", self.building);
+                return Err(InvalidSetting::field("building", problem));
+            }
         }
         let [h0, h1, h2] = self.level_heights_m;
         if !(h0.is_finite() && h1 > h0 + 0.05 && h2 > h1 + 0.05) {

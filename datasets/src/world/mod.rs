@@ -6,6 +6,7 @@
 pub mod block;
 pub mod building;
 pub mod bvh;
+pub mod corridor;
 pub mod labels;
 pub mod layout;
 pub mod lidar;
@@ -47,10 +48,12 @@ pub struct Sensed {
 }
 
 impl World {
-    /// The paper building (`config.building == 0`) or generated building N;
+    /// The paper building (`config.building == 0`), generated building N or
+    /// the long corridor (`config.corridor_m > 0`);
     /// `appearance_seed` varies colours and posters, never the geometry.
     pub fn new(config: &WorldConfig, appearance_seed: u64) -> Self {
         let layout = match config.building {
+            _ if config.corridor_m > 0.0 => corridor::build(config, appearance_seed),
             0 => Layout::build(config, appearance_seed),
             n => building::generate(n, appearance_seed),
         };

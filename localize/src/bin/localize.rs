@@ -13,6 +13,7 @@ use localize::eval::{Alignment, ErrorSummary, compare};
 use localize::levels::LevelMap;
 use localize::pipeline::FrameStatus;
 use localize::run::{metrics, run_sequence_in_map, write_outputs};
+use localize::sensor_faults::{SensorFaults, WithFaults};
 use localize::sequence::{RecordedSequence, SensorSequence, WithTruth};
 
 #[derive(Parser)]
@@ -173,6 +174,13 @@ struct RunArgs {
     /// map.json and map.ply); this sequence must start where that run's did.
     #[arg(long)]
     map: Option<PathBuf>,
+    /// Simulate a LIDAR blackout: drop the scans from START to END seconds
+    /// after the first scan (repeatable), to see how the run holds up.
+    #[arg(long, value_name = "START:END", value_parser = localize::sensor_faults::parse_gap)]
+    lidar_gap: Vec<[f64; 2]>,
+    /// Simulate a camera that stops: no image from this many seconds after the first scan on.
+    #[arg(long, value_name = "SECONDS", value_parser = datasets::cli::non_negative)]
+    camera_stop: Option<f64>,
     #[arg(long, default_value_t = 2.0, value_parser = datasets::cli::non_negative)]
     label_noise_px: f64,
     #[arg(long, default_value_t = 1)]
@@ -448,6 +456,10 @@ fn run(args: &RunArgs) -> Result<()> {
         }
         sequence = Box::new(WithTruth { inner: sequence, truth });
     }
+    let faults = SensorFaults { lidar_gaps: args.lidar_gap.clone(), camera_stop_s: args.camera_stop };
+    if !faults.is_empty() {
+        sequence = Box::new(WithFaults { inner: sequence, faults });
+    }
     let mut source = match &args.corners_from_labels {
         _ if args.without_camera => CornerSource::Off,
         Some(labels) => CornerSource::labels(labels, args.label_noise_px, args.seed)?,
@@ -481,6 +493,9 @@ fn run(args: &RunArgs) -> Result<()> {
     });
     if let Some(why) = first {
         eprintln!("warning: {n} of {} frames had no usable cloud, the first because: {why}", result.frames.len());
+    }
+    if let Some((gap, stamp)) = localize::run::longest_scan_gap(&result.frames) {
+        eprintln!("warning: no scan for {gap:.2} s before the scan at {stamp:.3} (odometry/IMU carried the pose)");
     }
     if let Some(m) = metrics {
         println!("{} frames, {} fused, {:.1} ms per frame", m.frames, m.fused_frames, m.mean_total_ms);
