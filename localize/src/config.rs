@@ -37,11 +37,13 @@ pub struct LocalizeConfig {
 const MAX_COUNT: usize = 10_000_000;
 
 impl LocalizeConfig {
-    /// The paper's estimator: corners and walls with odometry/IMU, without
-    /// the scan-to-map registration this project adds.
+    /// The paper's estimator: corners and walls with odometry/IMU, the
+    /// detector on every image, without the scan-to-map registration this
+    /// project adds.
     pub fn paper_estimator() -> Self {
         let mut config = Self::default();
         config.scan_match.enabled = false;
+        config.sync.detector_rate_hz = 0.0;
         config
     }
 
@@ -156,6 +158,7 @@ mod tests {
         assert_eq!(with(&|c| c.corners.edge_max_angle_deg = 1.0).field, "corners.edge_max_angle_deg");
         assert_eq!(with(&|c| c.ekf.bias_walk = f64::INFINITY).field, "ekf.bias_walk");
         assert_eq!(with(&|c| c.sync.image_tolerance_s = -1.0).field, "sync.image_tolerance_s");
+        assert_eq!(with(&|c| c.sync.detector_rate_hz = f64::NAN).field, "sync.detector_rate_hz");
         assert_eq!(with(&|c| c.scan_match.map_voxel_m = 0.0).field, "scan_match.map_voxel_m");
     }
 }

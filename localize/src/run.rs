@@ -84,6 +84,7 @@ pub fn run_sequence_in_map(
         point_map: Vec::new(),
     };
     let mut unreadable: Vec<String> = Vec::new();
+    let mut detector_clock = DetectorClock { rate_hz: config.sync.detector_rate_hz, last: None };
     let robot_from_camera = calibration.robot_from_camera();
     let lidar_from_robot = calibration.robot_from_lidar.inverse();
     sequence.for_each_frame(&mut |frame: FrameInput| {
@@ -111,7 +112,7 @@ pub fn run_sequence_in_map(
             _ => calibration.camera_from_lidar.inverse(),
         };
         let name = image.as_ref().map_or_else(|_| datasets::generate::stamp_name(stamp), |i| i.name.clone());
-        let image = image.and_then(|i| i.image);
+        let image = image.and_then(|i| i.image).and_then(|image| detector_clock.take(stamp).map(|()| image));
         // The cloud's geometry and the detector are independent until fusion:
         // run them side by side, so each fills the cores the other leaves idle.
         let (geometry, (pixels, detect_ms)) = rayon::join(
@@ -145,6 +146,24 @@ pub fn run_sequence_in_map(
     result.plane_landmarks = localizer.plane_map.landmarks.clone();
     result.point_map = localizer.point_map.points().copied().collect();
     Ok(result)
+}
+
+/// Holds the detector to `SyncConfig::detector_rate_hz`.
+struct DetectorClock {
+    rate_hz: f64,
+    last: Option<f64>,
+}
+
+impl DetectorClock {
+    /// Whether the detector runs on the frame at `stamp`; why not otherwise.
+    fn take(&mut self, stamp: f64) -> std::result::Result<(), String> {
+        // Half a millisecond of slack: scan stamps are not exactly periodic.
+        if self.rate_hz > 0.0 && self.last.is_some_and(|last| stamp - last < 1.0 / self.rate_hz - 5e-4) {
+            return Err(format!("detector at {} Hz: this image skipped", self.rate_hz));
+        }
+        self.last = Some(stamp);
+        Ok(())
+    }
 }
 
 /// Longest a scan may lie past either end of the odometry and IMU logs
@@ -328,4 +347,22 @@ pub fn check_output_folder(out: &Path) -> Result<()> {
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_detector_clock_takes_every_other_scan_of_a_10_hz_lidar_at_5_hz() {
+        let mut clock = DetectorClock { rate_hz: 5.0, last: None };
+        // Scan stamps with a little jitter, as a driver writes them.
+        let stamps = [0.0, 0.1, 0.2001, 0.2999, 0.3998, 0.5, 0.6, 0.75, 0.8];
+        let taken: Vec<f64> = stamps.iter().copied().filter(|&t| clock.take(t).is_ok()).collect();
+        assert_eq!(taken, [0.0, 0.2001, 0.3998, 0.6, 0.8]);
+        let why = clock.take(0.85).unwrap_err();
+        assert!(why.contains("5 Hz"), "{why}");
+        let mut every = DetectorClock { rate_hz: 0.0, last: None };
+        assert!(stamps.iter().all(|&t| every.take(t).is_ok()));
+    }
 }

@@ -7,7 +7,7 @@
 
 use datasets::InvalidSetting;
 use datasets::math::{Pose3, Vec3};
-use nalgebra::{Matrix6, Point3, SMatrix, Vector6};
+use nalgebra::{Matrix3, Matrix6, Point3, SMatrix, Vector6};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -233,11 +233,11 @@ impl ScanMatcher {
             return None;
         }
         let (h, _) = self.normal_equations(&terms);
-        let mut information = self.with_floor(&(h / (c.point_sigma_m * c.point_sigma_m)));
+        let mut information = h / (c.point_sigma_m * c.point_sigma_m);
         if c.horizontal_only {
-            let keep = Matrix6::from_diagonal(&Vector6::new(1.0, 1.0, 0.0, 0.0, 0.0, 1.0));
-            information = keep * information * keep;
+            information = horizontal_marginal(&information);
         }
+        let information = self.with_floor(&information);
         let inlier_gate = c.huber * c.point_sigma_m;
         let inliers: Vec<f64> = terms.iter().map(|t| t.0).filter(|r| r.abs() <= inlier_gate).collect();
         let rms_m = (inliers.iter().map(|r| r * r).sum::<f64>() / inliers.len().max(1) as f64).sqrt();
@@ -305,6 +305,37 @@ impl ScanMatcher {
         }
         (h, g)
     }
+}
+
+/// The information on x, y and yaw alone, height, roll and pitch
+/// marginalised out (the Schur complement): what the points say about the
+/// horizontal pose whatever the height is. Slicing the block instead would
+/// keep what a ramp's floor says about x only given the height, and turn a
+/// height error into an x error of height / tan(slope).
+fn horizontal_marginal(information: &Matrix6<f64>) -> Matrix6<f64> {
+    const KEEP: [usize; 3] = [0, 1, 5];
+    const OUT: [usize; 3] = [2, 3, 4];
+    let block = |rows: [usize; 3], cols: [usize; 3]| Matrix3::from_fn(|i, j| information[(rows[i], cols[j])]);
+    let (aa, ab, bb) = (block(KEEP, KEEP), block(KEEP, OUT), block(OUT, OUT));
+    // A pseudo-inverse: height, roll or pitch the points do not observe carry no information to take out.
+    let eigen = bb.symmetric_eigen();
+    let largest = eigen.eigenvalues.max();
+    let mut bb_inverse = Matrix3::zeros();
+    for k in 0..3 {
+        let value = eigen.eigenvalues[k];
+        if value > 1e-9 * largest {
+            let v = eigen.eigenvectors.column(k);
+            bb_inverse += v * v.transpose() / value;
+        }
+    }
+    let marginal = aa - ab * bb_inverse * ab.transpose();
+    let mut out = Matrix6::zeros();
+    for (i, &r) in KEEP.iter().enumerate() {
+        for (j, &c) in KEEP.iter().enumerate() {
+            out[(r, c)] = 0.5 * (marginal[(i, j)] + marginal[(j, i)]);
+        }
+    }
+    out
 }
 
 /// The Gauss-Newton step -H^-1 g within the directions the points observe:
@@ -407,6 +438,31 @@ mod tests {
         let fix = matcher.register(&map, &scan, &Vector6::new(0.1, 0.05, 0.0, 0.0, 0.0, 0.0)).unwrap();
         assert!(fix.pose[1].abs() < 2e-3, "y is pinned by the walls: {}", fix.pose[1]);
         assert!(fix.information[(0, 0)] < 1e-6 * fix.information[(1, 1)], "x: {}", fix.information);
+    }
+
+    #[test]
+    fn a_ramp_floor_says_nothing_about_x_when_the_height_is_left_free() {
+        // A 10 degree ramp between two walls along x: a shift along x looks
+        // like a change of height; only y and yaw are measured.
+        let slope = 10f64.to_radians();
+        let mut rng = ChaCha8Rng::seed_from_u64(13);
+        let (mut points, mut normals) = (Vec::new(), Vec::new());
+        for _ in 0..1500 {
+            let u = rng.random_range(-5.0..5.0);
+            let v = rng.random_range(0.0..1.0);
+            let floor = Vec3::new(u, 2.0 * v - 1.0, u * slope.tan() - 0.5);
+            points.extend([Vec3::new(u, -1.0, v), Vec3::new(u, 1.0, v), floor]);
+            normals.extend([Vec3::y(), -Vec3::y(), Vec3::new(-slope.sin(), 0.0, slope.cos())]);
+        }
+        let scan = ScanPoints { points, normals };
+        let matcher = ScanMatcher::new(ScanMatchConfig::default()).unwrap();
+        let mut map = matcher.new_map();
+        map.insert(&scan.points, &scan.normals, &Pose3::identity());
+        let fix = matcher.register(&map, &scan, &Vector6::new(0.0, 0.05, 0.0, 0.0, 0.0, 0.0)).unwrap();
+        let i = &fix.information;
+        assert!(fix.pose[1].abs() < 2e-3, "y is pinned by the walls: {}", fix.pose[1]);
+        assert!(i[(0, 0)] < 1e-6 * i[(1, 1)], "x: {i}");
+        assert!(i[(5, 5)] > 1e3, "yaw: {i}");
     }
 
     #[test]

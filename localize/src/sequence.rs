@@ -35,11 +35,15 @@ pub struct SyncConfig {
     /// Cast the detector's rays from the camera's pose at the image's own
     /// time (predicted by the filter); off, from its pose at the scan's time.
     pub camera_motion: bool,
+    /// The detector runs on at most this many images a second (the first
+    /// image at least 1/rate after the last one it ran on); the frames
+    /// between go on with the LIDAR alone. 0: on every frame's image.
+    pub detector_rate_hz: f64,
 }
 
 impl Default for SyncConfig {
     fn default() -> Self {
-        Self { image_tolerance_s: 0.05, deskew: true, camera_motion: true }
+        Self { image_tolerance_s: 0.05, deskew: true, camera_motion: true, detector_rate_hz: 5.0 }
     }
 }
 
@@ -49,6 +53,12 @@ impl SyncConfig {
             return Err(InvalidSetting::field(
                 "image_tolerance_s",
                 format!("{} s outside [0, 10]", self.image_tolerance_s),
+            ));
+        }
+        if !(0.0..=1000.0).contains(&self.detector_rate_hz) {
+            return Err(InvalidSetting::field(
+                "detector_rate_hz",
+                format!("{} Hz outside [0, 1000]", self.detector_rate_hz),
             ));
         }
         Ok(())

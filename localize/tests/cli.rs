@@ -152,7 +152,10 @@ fn run_on_a_bag_writes_the_trajectory_in_the_recording_clock_and_its_metrics() {
     assert!(frames.lines().any(|l| l.starts_with("1700000000.600000,0.400,")), "{frames}");
     let refused = localize(&["run", "--bag", &recording("rosbag2_mcap"), "--out", "x", "--lidar-gap", "5:3"]);
     let message = String::from_utf8_lossy(&refused.stderr);
-    assert!(!refused.status.success() && message.contains("--lidar-gap") && message.contains("after START"), "{message}");
+    assert!(
+        !refused.status.success() && message.contains("--lidar-gap") && message.contains("after START"),
+        "{message}"
+    );
 }
 
 #[test]
