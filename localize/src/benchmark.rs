@@ -42,6 +42,10 @@ pub struct BenchmarkPlan {
     /// Labelled images per building for the detector's AP@0.5.
     pub detection_images: usize,
     pub seed: u64,
+    /// More seeds for the paper's building (0): its appearance, lighting
+    /// and sensor noise drawn again, the geometry the same.
+    #[serde(default)]
+    pub paper_seeds: Vec<u64>,
 }
 
 impl BenchmarkPlan {
@@ -53,12 +57,20 @@ impl BenchmarkPlan {
             max_scans: 600,
             detection_images: 60,
             seed: 7,
+            paper_seeds: Vec::new(),
         }
     }
 
     /// Two buildings at one speed, 15 s each: a few minutes in all.
     pub fn quick() -> Self {
-        Self { buildings: vec![1, 2], speeds_mps: vec![1.0], max_scans: 150, detection_images: 16, seed: 7 }
+        Self {
+            buildings: vec![1, 2],
+            speeds_mps: vec![1.0],
+            max_scans: 150,
+            detection_images: 16,
+            seed: 7,
+            paper_seeds: Vec::new(),
+        }
     }
 
     pub fn validate(&self) -> std::result::Result<(), InvalidSetting> {
@@ -90,12 +102,23 @@ impl BenchmarkPlan {
         Ok(())
     }
 
+    /// The seeds building `building` runs at: the plan's, and for the
+    /// paper's building the extra ones.
+    pub fn seeds_of(&self, building: u32) -> Vec<u64> {
+        let mut seeds = vec![self.seed];
+        if building == 0 {
+            seeds.extend(self.paper_seeds.iter().filter(|&&s| s != self.seed));
+        }
+        seeds.dedup();
+        seeds
+    }
+
     /// The data settings of one sequence (building 0 keeps the paper's 1 Hz
-    /// timing); the first speed of a building also renders its labelled
-    /// images.
-    pub fn datagen(&self, building: u32, speed: f64, first_speed: bool) -> DatagenConfig {
+    /// timing); the first speed of a building and seed also renders its
+    /// labelled images.
+    pub fn datagen(&self, building: u32, seed: u64, speed: f64, first_speed: bool) -> DatagenConfig {
         let mut config = DatagenConfig::for_building(building);
-        config.seed = self.seed;
+        config.seed = seed;
         config.sequence.speed_mps = speed;
         config.sequence.max_scans = Some(self.max_scans);
         let images = if first_speed { self.detection_images } else { 0 };
@@ -109,6 +132,7 @@ impl BenchmarkPlan {
 #[derive(Debug, Clone, Serialize)]
 pub struct BenchmarkRow {
     pub building: u32,
+    pub seed: u64,
     pub speed_mps: f64,
     pub levels: usize,
     pub scans: usize,
@@ -128,8 +152,11 @@ pub struct BenchmarkRow {
     pub peers: Vec<(String, Option<ErrorSummary>)>,
 }
 
-fn sequence_dir(out: &Path, building: u32, speed: f64) -> PathBuf {
-    out.join(format!("building-{building}")).join(format!("speed-{speed}"))
+/// `building-N/speed-S`, or `building-N-seed-K/speed-S` for a seed other than the plan's.
+fn sequence_dir(out: &Path, plan: &BenchmarkPlan, building: u32, seed: u64, speed: f64) -> PathBuf {
+    let name =
+        if seed == plan.seed { format!("building-{building}") } else { format!("building-{building}-seed-{seed}") };
+    out.join(name).join(format!("speed-{speed}"))
 }
 
 /// Generates what is missing (a folder whose `benchmark-data.json` holds the
@@ -143,10 +170,11 @@ pub fn run_benchmark(
     show_progress: bool,
 ) -> Result<Vec<BenchmarkRow>> {
     plan.validate()?;
-    let cases: Vec<(u32, f64, bool)> = plan
+    let cases: Vec<(u32, u64, f64, bool)> = plan
         .buildings
         .iter()
-        .flat_map(|&b| plan.speeds_mps.iter().enumerate().map(move |(i, &s)| (b, s, i == 0)))
+        .flat_map(|&b| plan.seeds_of(b).into_iter().map(move |seed| (b, seed)))
+        .flat_map(|(b, seed)| plan.speeds_mps.iter().enumerate().map(move |(i, &s)| (b, seed, s, i == 0)))
         .collect();
     let bar = if show_progress { ProgressBar::new(cases.len() as u64 * 2) } else { ProgressBar::hidden() };
     bar.set_style(
@@ -165,9 +193,9 @@ pub fn run_benchmark(
         "program": datasets::fingerprint::of_program()?,
     });
     let mut rows = Vec::new();
-    for (building, speed, first) in cases {
-        let dir = sequence_dir(out, building, speed);
-        let data = plan.datagen(building, speed, first);
+    for (building, seed, speed, first) in cases {
+        let dir = sequence_dir(out, plan, building, seed, speed);
+        let data = plan.datagen(building, seed, speed, first);
         bar.set_message(format!("building {building} at {speed} m/s: data"));
         ensure_data(&dir, &data)?;
         bar.inc(1);
@@ -201,7 +229,7 @@ pub fn run_benchmark(
                     without_camera: without_camera.fused.overall,
                     without_scan_match: without_scan_match.fused.overall,
                     scans: measured.frames,
-                    corrected_frames: measured.fused_frames,
+                    corrected_frames: measured.corrected_frames,
                     ms_per_frame: measured.mean_total_ms,
                     ap50,
                 };
@@ -224,6 +252,7 @@ pub fn run_benchmark(
         let levels = datasets::world::World::new(&data.world, 0).layout.levels.len();
         rows.push(BenchmarkRow {
             building,
+            seed,
             speed_mps: speed,
             levels,
             scans: record.scans,
@@ -239,11 +268,12 @@ pub fn run_benchmark(
         });
     }
     bar.finish_and_clear();
-    // A building's AP is measured once, at its first speed.
-    let aps: Vec<(u32, Option<f64>)> = rows.iter().filter(|r| r.ap50.is_some()).map(|r| (r.building, r.ap50)).collect();
+    // A building's AP is measured once per seed, at its first speed.
+    let aps: Vec<((u32, u64), Option<f64>)> =
+        rows.iter().filter(|r| r.ap50.is_some()).map(|r| ((r.building, r.seed), r.ap50)).collect();
     for row in &mut rows {
         if row.ap50.is_none() {
-            row.ap50 = aps.iter().find(|(b, _)| *b == row.building).and_then(|(_, ap)| *ap);
+            row.ap50 = aps.iter().find(|(key, _)| *key == (row.building, row.seed)).and_then(|(_, ap)| *ap);
         }
     }
     Ok(rows)
@@ -373,22 +403,23 @@ pub fn parse_speeds(text: &str) -> std::result::Result<Vec<f64>, String> {
 /// The table as Markdown: errors in millimetres.
 pub fn markdown(rows: &[BenchmarkRow]) -> String {
     let mut out = String::from(
-        "| building | levels | speed m/s | scans | distance m | fused x | fused y | fused z | fused ATE | \
+        "| building | seed | levels | speed m/s | scans | distance m | fused x | fused y | fused z | fused ATE | \
          without camera ATE | without scan matching ATE | odom/IMU ATE |",
     );
     for p in PEERS {
         let _ = write!(out, " {p} x | {p} y | {p} ATE |");
     }
     out.push_str(" corrected | ms/frame | AP@0.5 |\n|");
-    for _ in 0..(12 + 3 * PEERS.len() + 3) {
+    for _ in 0..(13 + 3 * PEERS.len() + 3) {
         out.push_str("---:|");
     }
     out.push('\n');
     for r in rows {
         let _ = write!(
             out,
-            "| {} | {} | {} | {} | {:.1} | {} | {} | {} | {} | {} | {} | {} |",
+            "| {} | {} | {} | {} | {} | {:.1} | {} | {} | {} | {} | {} | {} | {} |",
             r.building,
+            r.seed,
             r.levels,
             r.speed_mps,
             r.scans,
@@ -418,7 +449,7 @@ pub fn markdown(rows: &[BenchmarkRow]) -> String {
 /// The table as CSV: errors in metres.
 pub fn csv(rows: &[BenchmarkRow]) -> String {
     let mut out = String::from(
-        "building,levels,speed_mps,scans,distance_m,fused_rmse_x,fused_rmse_y,fused_rmse_z,fused_ate,\
+        "building,seed,levels,speed_mps,scans,distance_m,fused_rmse_x,fused_rmse_y,fused_rmse_z,fused_ate,\
          without_camera_ate,without_scan_match_ate,odometry_imu_ate",
     );
     for p in PEERS {
@@ -429,8 +460,9 @@ pub fn csv(rows: &[BenchmarkRow]) -> String {
     for r in rows {
         let _ = write!(
             out,
-            "{},{},{},{},{:.3},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6}",
+            "{},{},{},{},{},{:.3},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6}",
             r.building,
+            r.seed,
             r.levels,
             r.speed_mps,
             r.scans,

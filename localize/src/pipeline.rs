@@ -38,6 +38,16 @@ pub enum FrameStatus {
 }
 
 impl FrameStatus {
+    /// Whether corners, walls or the scan registration corrected the frame's
+    /// pose (rather than it being the odometry/IMU's).
+    pub fn corrected(&self) -> bool {
+        match self {
+            Self::Fused { .. } => true,
+            Self::NoImage { walls, scan, .. } => *walls > 0 || *scan > 0,
+            Self::FirstFrame | Self::TooFewMatches { .. } | Self::BadCloud(_) => false,
+        }
+    }
+
     pub fn label(&self) -> String {
         match self {
             Self::Fused { corners, walls, scan } => {

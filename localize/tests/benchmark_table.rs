@@ -34,16 +34,22 @@ fn plans_outside_the_supported_ranges_are_refused() {
     assert!(with(&|p| p.max_scans = 5).is_err());
     assert!(with(&|p| p.buildings.clear()).is_err());
     // Generated buildings get a robot's timing; the first speed also renders the AP images.
-    let data = BenchmarkPlan::standard().datagen(3, 0.5, true);
+    let data = BenchmarkPlan::standard().datagen(3, 7, 0.5, true);
     assert_eq!((data.world.building, data.sequence.speed_mps, data.sequence.max_scans), (3, 0.5, Some(600)));
     assert_eq!(
         (data.sequence.rate_hz, data.sequence.camera_rate_hz, data.lidar.sweep_period_s),
         (10.0, Some(15.0), 0.1)
     );
     assert_eq!((data.detection.images, data.detection.train), (60, 0));
-    assert_eq!(BenchmarkPlan::standard().datagen(3, 1.0, false).detection.images, 0);
-    let paper = BenchmarkPlan::standard().datagen(0, 0.05, true);
+    assert_eq!(BenchmarkPlan::standard().datagen(3, 7, 1.0, false).detection.images, 0);
+    let paper = BenchmarkPlan::standard().datagen(0, 7, 0.05, true);
     assert_eq!((paper.sequence.rate_hz, paper.sequence.camera_rate_hz, paper.lidar.sweep_period_s), (1.0, None, 0.0));
+    // More seeds for the paper's building only, the plan's own first and once.
+    let mut plan = BenchmarkPlan::standard();
+    plan.paper_seeds = vec![8, 7, 9];
+    assert_eq!(plan.seeds_of(0), vec![7, 8, 9]);
+    assert_eq!(plan.seeds_of(3), vec![7]);
+    assert_eq!(plan.datagen(0, 9, 0.05, true).seed, 9);
 }
 
 fn summary(x: f64, y: f64, z: f64) -> ErrorSummary {
@@ -64,6 +70,7 @@ fn summary(x: f64, y: f64, z: f64) -> ErrorSummary {
 fn tables_carry_each_figure_in_its_unit() {
     let row = BenchmarkRow {
         building: 2,
+        seed: 7,
         speed_mps: 0.5,
         levels: 3,
         scans: 600,
@@ -84,6 +91,7 @@ fn tables_carry_each_figure_in_its_unit() {
     let cells: Vec<&str> = lines[2].split('|').map(str::trim).collect();
     assert_eq!(header.len(), cells.len());
     let cell = |name: &str| cells[header.iter().position(|h| *h == name).unwrap_or_else(|| panic!("{name}"))];
+    assert_eq!(cell("seed"), "7");
     assert_eq!(cell("fused x"), "3.0");
     assert_eq!(cell("fused z"), "12.0");
     assert_eq!(cell("fused ATE"), "13.0");
