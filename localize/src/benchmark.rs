@@ -5,7 +5,8 @@
 //! beside the LIDAR odometry peers whose trajectories a script left in the
 //! folder. One table out, as Markdown, CSV and JSON.
 //!
-//! Layout of `--out`: `building-N/speed-S/` holds the generated data
+//! Layout of `--out`: `building-N/speed-S/` (`building-0-seed-K/speed-S/`
+//! for the paper's building at another seed) holds the generated data
 //! (`sequence/`, `detection/`, `preview/topdown.png`), `run/` the fused run's
 //! outputs, `run-without-camera/` and `run-without-scan-match/` the two
 //! ablations', `benchmark-run.json` their figures and what made them (so an
@@ -107,9 +108,12 @@ impl BenchmarkPlan {
     pub fn seeds_of(&self, building: u32) -> Vec<u64> {
         let mut seeds = vec![self.seed];
         if building == 0 {
-            seeds.extend(self.paper_seeds.iter().filter(|&&s| s != self.seed));
+            for &seed in &self.paper_seeds {
+                if !seeds.contains(&seed) {
+                    seeds.push(seed);
+                }
+            }
         }
-        seeds.dedup();
         seeds
     }
 
@@ -196,7 +200,9 @@ pub fn run_benchmark(
     for (building, seed, speed, first) in cases {
         let dir = sequence_dir(out, plan, building, seed, speed);
         let data = plan.datagen(building, seed, speed, first);
-        bar.set_message(format!("building {building} at {speed} m/s: data"));
+        let case =
+            if seed == plan.seed { format!("building {building}") } else { format!("building {building} seed {seed}") };
+        bar.set_message(format!("{case} at {speed} m/s: data"));
         ensure_data(&dir, &data)?;
         bar.inc(1);
         let sequence = RecordedSequence::open_with(&dir.join("sequence"), &config.sync)?;
@@ -205,14 +211,14 @@ pub fn run_benchmark(
         let record = match SequenceRecord::read(&dir, &inputs) {
             Some(record) => record,
             None => {
-                bar.set_message(format!("building {building} at {speed} m/s: localizing"));
+                bar.set_message(format!("{case} at {speed} m/s: localizing"));
                 // Records were once kept inside `run/`, which a new run must replace whole.
                 let _ = std::fs::remove_file(dir.join("run").join(RECORD_FILE));
                 let measured = localize_into(&dir, "run", &sequence, &mut source, config)?;
-                bar.set_message(format!("building {building} at {speed} m/s: without the camera"));
+                bar.set_message(format!("{case} at {speed} m/s: without the camera"));
                 let without_camera =
                     localize_into(&dir, "run-without-camera", &sequence, &mut CornerSource::Off, config)?;
-                bar.set_message(format!("building {building} at {speed} m/s: without scan matching"));
+                bar.set_message(format!("{case} at {speed} m/s: without scan matching"));
                 let mut paper = config.clone();
                 paper.scan_match.enabled = false;
                 let without_scan_match = localize_into(&dir, "run-without-scan-match", &sequence, &mut source, &paper)?;

@@ -46,7 +46,7 @@ fn plans_outside_the_supported_ranges_are_refused() {
     assert_eq!((paper.sequence.rate_hz, paper.sequence.camera_rate_hz, paper.lidar.sweep_period_s), (1.0, None, 0.0));
     // More seeds for the paper's building only, the plan's own first and once.
     let mut plan = BenchmarkPlan::standard();
-    plan.paper_seeds = vec![8, 7, 9];
+    plan.paper_seeds = vec![8, 7, 9, 8];
     assert_eq!(plan.seeds_of(0), vec![7, 8, 9]);
     assert_eq!(plan.seeds_of(3), vec![7]);
     assert_eq!(plan.datagen(0, 9, 0.05, true).seed, 9);
