@@ -218,6 +218,11 @@ pub fn pose_of(x: &State) -> Pose3 {
     Pose3::from_parts(Vec3::new(x[0], x[1], x[2]).into(), rotation(x[3], x[4], x[5]))
 }
 
+/// The state's pose part as a vector: x, y, z, roll, pitch, yaw.
+pub fn pose_vector(x: &State) -> SVector<f64, 6> {
+    x.fixed_rows::<6>(0).into_owned()
+}
+
 /// The motion model: attitude integrates the bias-corrected gyro rate in the
 /// body frame; position moves along the body's x axis at the scaled wheel
 /// speed (midpoint attitude).

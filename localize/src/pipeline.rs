@@ -318,9 +318,7 @@ impl Localizer {
         if scan.points.is_empty() {
             return None;
         }
-        let x = &ekf.x;
-        let predicted = nalgebra::Vector6::new(x[0], x[1], x[2], x[3], x[4], x[5]);
-        self.scan_matcher.register(&self.point_map, scan, &predicted)
+        self.scan_matcher.register(&self.point_map, scan, &crate::ekf::pose_vector(&ekf.x))
     }
 
     fn insert_scan(&mut self, scan: &ScanPoints, pose: &Pose3) {

@@ -7,10 +7,10 @@
 //! reference.
 
 use datasets::math::Vec3;
-use nalgebra::{DMatrix, DVector, Matrix6, Vector6};
+use nalgebra::{DMatrix, DVector, Matrix6};
 use serde::{Deserialize, Serialize};
 
-use crate::ekf::{Covariance, Ekf, STATES, State, pose_of};
+use crate::ekf::{Covariance, Ekf, STATES, State, pose_of, pose_vector};
 use crate::euler::{rotation, wrap};
 use crate::scan_match::ScanFix;
 use crate::similarity::umeyama;
@@ -289,8 +289,7 @@ impl Blocks<'_> {
             out[base + 3 * k + 2] = normal_gap.y;
         }
         if let Some((fix, whitening)) = &self.scan {
-            let pose = Vector6::new(x[0], x[1], x[2], x[3], x[4], x[5]);
-            out.fixed_rows_mut::<6>(self.scan_start()).copy_from(&(whitening * fix.difference(&pose)));
+            out.fixed_rows_mut::<6>(self.scan_start()).copy_from(&(whitening * fix.difference(&pose_vector(x))));
         }
         out
     }
