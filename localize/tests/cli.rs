@@ -109,15 +109,14 @@ fn run_on_a_bag_writes_the_trajectory_in_the_recording_clock_and_its_metrics() {
     let dir = tempfile::tempdir().unwrap();
     let out_dir = dir.path().join("run");
     let checkpoint = manifest_dir().join("../checkpoints/alexnet");
-    let out = localize(&[
-        "run",
-        "--bag",
-        &recording("rosbag2_mcap"),
-        "--checkpoint",
-        checkpoint.to_str().unwrap(),
-        "--out",
-        out_dir.to_str().unwrap(),
-    ]);
+    let bag = recording("rosbag2_mcap");
+    let run = |out: &std::path::Path, extra: &[&str]| {
+        let mut args = vec!["run", "--bag", &bag, "--checkpoint", checkpoint.to_str().unwrap()];
+        args.extend(["--out", out.to_str().unwrap()]);
+        args.extend(extra);
+        localize(&args)
+    };
+    let out = run(&out_dir, &[]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(stdout.contains("10 of 10 scans have an image within 0.05 s"), "{stdout}");
@@ -133,24 +132,14 @@ fn run_on_a_bag_writes_the_trajectory_in_the_recording_clock_and_its_metrics() {
     assert_eq!(metrics["fused"]["overall"]["matched"], 10);
     // Simulated faults count from the first scan, whatever the recording's clock.
     let faulty = dir.path().join("faulty");
-    let out = localize(&[
-        "run",
-        "--bag",
-        &recording("rosbag2_mcap"),
-        "--checkpoint",
-        checkpoint.to_str().unwrap(),
-        "--out",
-        faulty.to_str().unwrap(),
-        "--lidar-gap",
-        "0.25:0.55",
-    ]);
+    let out = run(&faulty, &["--lidar-gap", "0.25:0.55"]);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stderr}");
     assert!(stderr.contains("no scan for 0.40 s before the scan at 1700000000.600"), "{stderr}");
     let frames = std::fs::read_to_string(faulty.join("frames.csv")).unwrap();
     assert_eq!(frames.lines().count(), 1 + 7, "{frames}");
     assert!(frames.lines().any(|l| l.starts_with("1700000000.600000,0.400,")), "{frames}");
-    let refused = localize(&["run", "--bag", &recording("rosbag2_mcap"), "--out", "x", "--lidar-gap", "5:3"]);
+    let refused = run(std::path::Path::new("x"), &["--lidar-gap", "5:3"]);
     let message = String::from_utf8_lossy(&refused.stderr);
     assert!(
         !refused.status.success() && message.contains("--lidar-gap") && message.contains("after START"),
