@@ -19,7 +19,7 @@ use datasets::recording::{RawMessage, Recording};
 use datasets::undistort::Undistorter;
 
 use crate::error::{LocalizeError, Result};
-use crate::sequence::{FrameImage, FrameInput, SensorSequence, SyncConfig, anchored, nearest_within};
+use crate::sequence::{FrameImage, FrameInput, SensorSequence, SyncConfig, nearest_within};
 
 /// Which topics and frames to use; `None` finds the topic by its type.
 #[derive(Debug, Clone, Default)]
@@ -196,7 +196,8 @@ pub struct BagSequence {
     pub calibration: Calibration,
     pub odometry: Vec<OdometrySample>,
     pub imu: Vec<ImuSample>,
-    /// World from robot, the world being the robot's pose at the first scan.
+    /// World from robot in the ground-truth topic's own frame (a run puts
+    /// it in its world: `run::truth_in_run_frame`).
     pub ground_truth: Option<Trajectory>,
     /// What was chosen and why, for the user.
     pub notes: Vec<String>,
@@ -295,7 +296,7 @@ impl BagSequence {
                 sync.image_tolerance_s
             ));
         }
-        let ground_truth = (!pass.truth.is_empty()).then(|| anchored(&pass.truth, scan_times[0]));
+        let ground_truth = (!pass.truth.is_empty()).then(|| pass.truth.clone());
         Ok(Self {
             recording,
             roles,

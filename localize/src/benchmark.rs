@@ -244,7 +244,9 @@ pub fn run_benchmark(
             }
         };
         bar.inc(1);
-        let truth = sequence_truth(&sequence).expect("a generated sequence has ground truth");
+        // The peers' world, like a run's, is the robot at the first scan.
+        let raw = sequence_truth(&sequence).expect("a generated sequence has ground truth");
+        let truth = &crate::sequence::relative_to(raw, &crate::sequence::truth_at(raw, sequence.frames[0].stamp));
         let distance_m =
             truth.poses.windows(2).map(|w| (w[1].translation.vector - w[0].translation.vector).norm()).sum();
         let peers = PEERS
@@ -336,7 +338,8 @@ fn localize_into(
         path: dir.to_path_buf(),
         message: "the ground truth does not overlap the run".into(),
     })?;
-    write_outputs(&dir.join(name), config, &result, sequence_truth(sequence), Some(&measured))?;
+    let truth = crate::run::truth_in_run_frame(sequence, &result);
+    write_outputs(&dir.join(name), config, &result, truth.as_ref(), Some(&measured))?;
     Ok(measured)
 }
 

@@ -13,6 +13,7 @@ use crate::normals::NormalConfig;
 use crate::plane_landmarks::PlaneLandmarkConfig;
 use crate::planes::PlaneConfig;
 use crate::pose::PoseConfig;
+use crate::relocalize::RelocalizeConfig;
 use crate::scan_match::ScanMatchConfig;
 use crate::sequence::SyncConfig;
 use crate::voxel::VoxelConfig;
@@ -31,6 +32,8 @@ pub struct LocalizeConfig {
     pub pose: PoseConfig,
     pub ekf: EkfConfig,
     pub sync: SyncConfig,
+    /// Placing a new sequence's first scan in a saved map (`localize run --map`).
+    pub relocalize: RelocalizeConfig,
 }
 
 /// Largest count a setting may ask for (points, votes, observations).
@@ -133,7 +136,8 @@ impl LocalizeConfig {
             non_negative(name, v, 1000.0)?;
         }
         self.scan_match.validate().map_err(|e| e.within("scan_match"))?;
-        self.sync.validate().map_err(|e| e.within("sync"))
+        self.sync.validate().map_err(|e| e.within("sync"))?;
+        self.relocalize.validate().map_err(|e| e.within("relocalize"))
     }
 }
 

@@ -98,6 +98,14 @@ impl Ekf {
         pose_of(&self.x)
     }
 
+    /// Moves the pose to `pose` (a start found in a map), keeping the rest
+    /// of the state and the covariance.
+    pub fn place(&mut self, pose: &Pose3) {
+        let (roll, pitch, yaw) = pose.rotation.euler_angles();
+        let t = pose.translation.vector;
+        self.x.fixed_rows_mut::<6>(0).copy_from_slice(&[t.x, t.y, t.z, roll, pitch, yaw]);
+    }
+
     /// Propagates by `dt` with the body angular rate `gyro` and wheel speed `speed`.
     pub fn predict(&mut self, gyro: &Vec3, speed: f64, dt: f64) {
         if dt <= 0.0 {

@@ -17,6 +17,9 @@ pub enum LocalizeError {
     Recording(String),
     #[error("point cloud: {0}")]
     Cloud(String),
+    /// The first scan could not be placed in the given map.
+    #[error("placing the first scan (at {stamp:.3} s) in the map: {why}")]
+    Relocalize { stamp: f64, why: String },
     #[error("{path}: {message}")]
     Sequence { path: PathBuf, message: String },
     #[error(transparent)]

@@ -27,6 +27,7 @@ pub mod planes;
 pub mod plot;
 pub mod point_map;
 pub mod pose;
+pub mod relocalize;
 pub mod run;
 pub mod scan_match;
 pub mod sensor_faults;

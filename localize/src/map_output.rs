@@ -2,23 +2,30 @@
 //! `map.ply` (the point map with its normals, grey, then the corner
 //! landmarks, red; binary PLY as CloudCompare and Open3D read it) and
 //! `map.json` (corner and wall landmarks with everything that makes them
-//! trusted, and the point count). World frame: the robot at the first scan,
-//! as in `trajectory.txt`. `read_map` takes both back for `localize run
-//! --map`.
+//! trusted, the point count, the keyframes a later run is placed from, and
+//! where the map's frame lies in the ground truth's when the run had one).
+//! World frame: the robot at the first scan, as in `trajectory.txt` (or the
+//! frame of the map the run started from). `read_map` takes both back for
+//! `localize run --map`.
 
 use std::io::Write as _;
 use std::path::Path;
 
 use datasets::DataError;
-use datasets::math::Vec3;
+use datasets::math::{Pose3, Vec3};
 use serde::{Deserialize, Serialize};
 
 use crate::landmarks::Landmark;
 use crate::plane_landmarks::PlaneLandmark;
 use crate::point_map::MapPoint;
 
-/// The version `map.json` says it is.
-const FORMAT: &str = "corner-fusion map 1";
+/// The version `map.json` says it is; version 1 had no keyframes and no
+/// ground-truth origin, and is still read.
+const FORMAT: &str = "corner-fusion map 2";
+const FORMAT_1: &str = "corner-fusion map 1";
+
+/// A pose as `map.json` writes it: x y z qx qy qz qw (TUM's order).
+pub type PoseArray = [f64; 7];
 
 /// What `map.json` holds.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -31,14 +38,38 @@ pub struct MapFile {
     pub walls: Vec<PlaneLandmark>,
     /// The first this many vertices of `map.ply` are the point map's.
     pub points: usize,
+    /// Robot poses along the mapping run (every metre and on turns): where
+    /// a later sequence's start is searched for.
+    #[serde(default)]
+    pub keyframes: Vec<PoseArray>,
+    /// The map's frame in the ground truth's frame, when the mapping run
+    /// had ground truth: only for scoring later runs in this map.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub truth_origin: Option<PoseArray>,
 }
 
-/// A map read back: landmarks and the point map's points.
+/// A map read back (or about to be written).
 #[derive(Debug, Clone, PartialEq)]
 pub struct SavedMap {
     pub corners: Vec<Landmark>,
     pub walls: Vec<PlaneLandmark>,
     pub points: Vec<MapPoint>,
+    pub keyframes: Vec<Pose3>,
+    pub truth_origin: Option<Pose3>,
+}
+
+pub fn pose_array(pose: &Pose3) -> PoseArray {
+    let (t, q) = (pose.translation.vector, pose.rotation.coords);
+    [t.x, t.y, t.z, q.x, q.y, q.z, q.w]
+}
+
+/// The pose of an array; `None` unless finite with a unit quaternion (1e-6).
+pub fn pose_from_array(a: &PoseArray) -> Option<Pose3> {
+    let q = nalgebra::Quaternion::new(a[6], a[3], a[4], a[5]);
+    if !a.iter().all(|v| v.is_finite()) || (q.norm() - 1.0).abs() > 1e-6 {
+        return None;
+    }
+    Some(Pose3::from_parts(Vec3::new(a[0], a[1], a[2]).into(), nalgebra::UnitQuaternion::new_normalize(q)))
 }
 
 const GREY: [u8; 3] = [160, 160, 160];
@@ -77,19 +108,16 @@ pub fn map_ply(points: &[MapPoint], corners: &[Landmark]) -> Vec<u8> {
 }
 
 /// Writes `map.ply` and `map.json` into `dir`.
-pub fn write_map(
-    dir: &Path,
-    points: &[MapPoint],
-    corners: &[Landmark],
-    walls: &[PlaneLandmark],
-) -> datasets::Result<()> {
-    datasets::atomic::write_bytes(&dir.join("map.ply"), &map_ply(points, corners))?;
+pub fn write_map(dir: &Path, map: &SavedMap) -> datasets::Result<()> {
+    datasets::atomic::write_bytes(&dir.join("map.ply"), &map_ply(&map.points, &map.corners))?;
     let file = MapFile {
         format: FORMAT.into(),
         frame: "world = the robot's pose at the first scan (as trajectory.txt)".into(),
-        corners: corners.to_vec(),
-        walls: walls.to_vec(),
-        points: points.len(),
+        corners: map.corners.clone(),
+        walls: map.walls.clone(),
+        points: map.points.len(),
+        keyframes: map.keyframes.iter().map(pose_array).collect(),
+        truth_origin: map.truth_origin.as_ref().map(pose_array),
     };
     datasets::atomic::write_json(&dir.join("map.json"), &file)
 }
@@ -102,9 +130,22 @@ pub fn read_map(dir: &Path) -> datasets::Result<SavedMap> {
     let text = datasets::atomic::read_text(&json_path)?;
     let file: MapFile = serde_json::from_str(&text)
         .map_err(|e| DataError::invalid(&json_path, format!("not a map written by `localize run`: {e}")))?;
-    if file.format != FORMAT {
+    if file.format != FORMAT && file.format != FORMAT_1 {
         return Err(DataError::invalid(&json_path, format!("format `{}`, expected `{FORMAT}`", file.format)));
     }
+    let mut keyframes = Vec::with_capacity(file.keyframes.len());
+    for (k, a) in file.keyframes.iter().enumerate() {
+        let pose = pose_from_array(a).ok_or_else(|| {
+            DataError::invalid(&json_path, format!("keyframe {k} is not a finite pose with a unit quaternion"))
+        })?;
+        keyframes.push(pose);
+    }
+    let truth_origin = match &file.truth_origin {
+        Some(a) => Some(pose_from_array(a).ok_or_else(|| {
+            DataError::invalid(&json_path, "truth_origin is not a finite pose with a unit quaternion")
+        })?),
+        None => None,
+    };
     let finite = |v: &Vec3| v.iter().all(|x| x.is_finite());
     if let Some(k) = file.corners.iter().position(|c| !finite(&c.position)) {
         return Err(DataError::invalid(&json_path, format!("corner {k} has a non-finite position")));
@@ -137,7 +178,7 @@ pub fn read_map(dir: &Path) -> datasets::Result<SavedMap> {
         }
         points.push(MapPoint { position, normal });
     }
-    Ok(SavedMap { corners: file.corners, walls: file.walls, points })
+    Ok(SavedMap { corners: file.corners, walls: file.walls, points, keyframes, truth_origin })
 }
 
 #[cfg(test)]
@@ -151,9 +192,35 @@ mod tests {
             MapPoint { position: Vec3::new(1.0, 2.0, 3.0), normal: Vec3::z() },
             MapPoint { position: Vec3::new(-0.5, 0.25, 0.0), normal: -Vec3::x() },
         ];
-        write_map(dir.path(), &points, &[], &[]).unwrap();
+        let turned = Pose3::from_parts(Vec3::new(1.0, -2.0, 0.5).into(), crate::euler::rotation(0.1, 0.0, 2.0));
+        let map = SavedMap {
+            corners: Vec::new(),
+            walls: Vec::new(),
+            points: points.clone(),
+            keyframes: vec![Pose3::identity(), turned],
+            truth_origin: Some(turned),
+        };
+        write_map(dir.path(), &map).unwrap();
         let back = read_map(dir.path()).unwrap();
         assert_eq!(back.points, points);
+        assert_eq!(back.keyframes[0], Pose3::identity());
+        assert!((back.keyframes[1].inverse() * turned).translation.vector.norm() < 1e-12);
+        assert!(back.truth_origin.unwrap().rotation.angle_to(&turned.rotation) < 1e-12);
+        // A version-1 map (no keyframes, no origin) still reads.
+        let json = dir.path().join("map.json");
+        let mut old: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+        old["format"] = "corner-fusion map 1".into();
+        old.as_object_mut().unwrap().remove("keyframes");
+        old.as_object_mut().unwrap().remove("truth_origin");
+        std::fs::write(&json, old.to_string()).unwrap();
+        let v1 = read_map(dir.path()).unwrap();
+        assert!(v1.keyframes.is_empty() && v1.truth_origin.is_none() && v1.points == points);
+        // A keyframe that is no pose is named.
+        old["keyframes"] = serde_json::json!([[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 2.0]]);
+        std::fs::write(&json, old.to_string()).unwrap();
+        let bad = read_map(dir.path()).unwrap_err().to_string();
+        assert!(bad.contains("map.json") && bad.contains("keyframe 0"), "{bad}");
+        write_map(dir.path(), &map).unwrap();
         let ply = dir.path().join("map.ply");
         let bytes = std::fs::read(&ply).unwrap();
         std::fs::write(&ply, &bytes[..bytes.len() - 5]).unwrap();

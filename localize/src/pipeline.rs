@@ -18,6 +18,7 @@ use crate::landmarks::LandmarkMap;
 use crate::plane_landmarks::{PlaneMap, RobotPlane};
 use crate::point_map::PointMap;
 use crate::pose::{Correspondence, PlaneCorrespondence, PlaneSigmas, PoseSolver};
+use crate::relocalize::{Placement, RelocalizeConfig, relocalize};
 use crate::scan_match::{ScanFix, ScanMatcher, ScanPoints};
 
 /// How a frame's pose was obtained, written to the per-frame log.
@@ -170,7 +171,13 @@ pub struct Localizer {
     /// The maps came from an earlier run: the first frame is corrected
     /// against them rather than starting them.
     given_map: bool,
+    /// The given map's keyframes, where its first frame is searched for.
+    keyframes: Vec<Pose3>,
+    relocalize: RelocalizeConfig,
 }
+
+/// How far from a given start's heading the search turns.
+const START_WINDOW_DEG: f64 = 30.0;
 
 impl Localizer {
     pub fn new(config: &LocalizeConfig, calibration: Calibration) -> Result<Self> {
@@ -187,18 +194,47 @@ impl Localizer {
             frames_seen: 0,
             last_stamp: None,
             given_map: false,
+            keyframes: Vec::new(),
+            relocalize: config.relocalize.clone(),
         })
     }
 
-    /// Starts from the maps an earlier run wrote (`map_output::read_map`).
-    /// Their world is that run's first robot pose: the new sequence must
-    /// start where that one did.
+    /// Starts from the maps an earlier run wrote (`map_output::read_map`);
+    /// the first frame is then placed in them (`place_in_map`).
     pub fn start_from_map(&mut self, map: crate::map_output::SavedMap) {
+        self.keyframes = map.keyframes;
         self.map.landmarks = map.corners;
         self.plane_map.landmarks = map.walls;
         let (points, normals): (Vec<Vec3>, Vec<Vec3>) = map.points.iter().map(|p| (p.position, p.normal)).unzip();
         self.point_map.insert(&points, &normals, &Pose3::identity());
         self.given_map = true;
+    }
+
+    /// Where the frame of `geometry` lies in the given map: searched near
+    /// `start` when the user gave one (within `START_WINDOW_DEG` of its
+    /// heading), else around every keyframe of the map at every heading. A
+    /// map without surface points cannot be searched: a given start is then
+    /// taken as it is.
+    pub fn place_in_map(&self, geometry: &Geometry, start: Option<&Pose3>) -> std::result::Result<Placement, String> {
+        if let Some(start) = start
+            && self.point_map.is_empty()
+        {
+            return Ok(Placement { pose: *start, agreement: 0.0, runner_up: 0.0, candidates: 0 });
+        }
+        if self.point_map.is_empty() {
+            return Err(
+                "the map has no surface points to search (written with scan matching off): give --start-pose".into()
+            );
+        }
+        if !self.scan_matcher.config().enabled {
+            return Err("placing a scan in the map needs scan matching (`scan_match.enabled`)".into());
+        }
+        let scan = self.scan_points(geometry);
+        let (seeds, window_deg) = match start {
+            Some(pose) => (std::slice::from_ref(pose), START_WINDOW_DEG),
+            None => (self.keyframes.as_slice(), 180.0),
+        };
+        relocalize(&self.point_map, &scan, seeds, window_deg, self.scan_matcher.config(), &self.relocalize)
     }
 
     /// The planes and 3D corners of a frame's cloud (or why there are none).

@@ -7,6 +7,7 @@ use std::path::Path;
 use std::time::Instant;
 
 use datasets::formats::{Trajectory, write_tum};
+use datasets::math::Pose3;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 
@@ -18,8 +19,9 @@ use crate::eval::{Alignment, ErrorSummary, compare};
 use crate::levels::{LevelMap, SegmentMetrics};
 use crate::motion::FrameMotion;
 use crate::pipeline::{CameraCorners, FrameReport, Localizer};
+use crate::relocalize::{Placement, keyframes_along};
 use crate::sensor_replay::SensorReplay;
-use crate::sequence::{FrameInput, SensorSequence};
+use crate::sequence::{FrameInput, SensorSequence, relative_to, truth_at};
 
 pub struct RunResult {
     /// The fused trajectory (world from robot).
@@ -32,6 +34,20 @@ pub struct RunResult {
     pub plane_landmarks: Vec<crate::plane_landmarks::PlaneLandmark>,
     /// The point map's surface points (empty without scan matching).
     pub point_map: Vec<crate::point_map::MapPoint>,
+    /// Poses a later run is placed from: the given map's, then this run's.
+    pub keyframes: Vec<Pose3>,
+    /// The run's world in the ground truth's frame: the ground truth at the
+    /// first scan, or the given map's origin (`None` when not known).
+    pub truth_origin: Option<Pose3>,
+    /// Where the first scan was placed in a given map.
+    pub placement: Option<Placement>,
+}
+
+/// A map to localize in, and optionally where in it the sequence starts
+/// (searched near there); without a start, around all the map's keyframes.
+pub struct MapStart {
+    pub map: crate::map_output::SavedMap,
+    pub start: Option<Pose3>,
 }
 
 pub fn run_sequence(
@@ -44,23 +60,29 @@ pub fn run_sequence(
 }
 
 /// As `run_sequence`, starting from the maps of an earlier run of the same
-/// building (which started where this sequence starts) when `map` is given.
+/// building when `map` is given: the first scan is placed in that map
+/// (`relocalize.rs`) and the trajectory is in the map's frame.
 pub fn run_sequence_in_map(
     sequence: &dyn SensorSequence,
     source: &mut CornerSource,
     config: &LocalizeConfig,
-    map: Option<crate::map_output::SavedMap>,
+    map: Option<MapStart>,
     show_progress: bool,
 ) -> Result<RunResult> {
     config.validate()?;
     let calibration = sequence.calibration().clone();
     let mut localizer = Localizer::new(config, calibration.clone())?;
-    if let Some(map) = map {
-        localizer.start_from_map(map);
-    }
     let stamps = sequence.frame_stamps();
     let Some(&start_time) = stamps.first() else {
         return Err(crate::error::LocalizeError::Recording("the recording has no LIDAR scans".into()));
+    };
+    let (mut keyframes, truth_origin, mut placing) = match map {
+        Some(MapStart { map, start }) => {
+            let kept = (map.keyframes.clone(), map.truth_origin, Some(start));
+            localizer.start_from_map(map);
+            kept
+        }
+        None => (Vec::new(), sequence.ground_truth().map(|t| truth_at(t, start_time)), None),
     };
     check_logs_cover(&stamps, sequence)?;
     // The world frame is the robot's pose at the first frame.
@@ -82,6 +104,9 @@ pub fn run_sequence_in_map(
         corner_landmarks: Vec::new(),
         plane_landmarks: Vec::new(),
         point_map: Vec::new(),
+        keyframes: Vec::new(),
+        truth_origin,
+        placement: None,
     };
     let mut unreadable: Vec<String> = Vec::new();
     let mut detector_clock = DetectorClock { rate_hz: config.sync.detector_rate_hz, last: None };
@@ -122,6 +147,17 @@ pub fn run_sequence_in_map(
                 (Ok(image), source) => source.corners(&name, Some(image)),
             },
         );
+        // In a given map, the first scan says where the run starts.
+        if let Some(start) = placing.take() {
+            let placed = match &geometry {
+                Ok(g) => localizer.place_in_map(g, start.as_ref()),
+                Err(why) => Err(format!("its cloud is unusable: {why}")),
+            };
+            let placement = placed.map_err(|why| crate::error::LocalizeError::Relocalize { stamp, why })?;
+            fused.place(&placement.pose);
+            dead_reckoning.place(&placement.pose);
+            result.placement = Some(placement);
+        }
         let camera = CameraCorners { pixels, lidar_from_camera, detect_ms };
         let report = localizer.process(stamp, &mut fused, geometry, camera, started);
         bar.set_message(report.status.label());
@@ -145,7 +181,16 @@ pub fn run_sequence_in_map(
     result.corner_landmarks = localizer.map.landmarks.clone();
     result.plane_landmarks = localizer.plane_map.landmarks.clone();
     result.point_map = localizer.point_map.points().copied().collect();
+    keyframes.extend(keyframes_along(&result.trajectory.poses, &config.relocalize));
+    result.keyframes = keyframes;
     Ok(result)
+}
+
+/// The sequence's ground truth in the run's world (the frame of its
+/// trajectory); `None` without ground truth or where the run's world is not
+/// known in the ground truth's frame (a map written without ground truth).
+pub fn truth_in_run_frame(sequence: &dyn SensorSequence, result: &RunResult) -> Option<Trajectory> {
+    Some(relative_to(sequence.ground_truth()?, result.truth_origin.as_ref()?))
 }
 
 /// Holds the detector to `SyncConfig::detector_rate_hz`.
@@ -214,7 +259,8 @@ pub struct RunMetrics {
 }
 
 pub fn metrics(sequence: &dyn SensorSequence, result: &RunResult) -> Result<Option<RunMetrics>> {
-    let Some(truth) = sequence.ground_truth() else { return Ok(None) };
+    let Some(truth) = truth_in_run_frame(sequence, result) else { return Ok(None) };
+    let truth = &truth;
     let levels = match sequence.world_description() {
         Some(world) => Some(LevelMap::read(&world)?),
         None => None,
@@ -321,7 +367,14 @@ pub fn write_outputs(
         datasets::atomic::write_bytes(&dir.join("frames.csv"), frames_csv(&result.frames).as_bytes())?;
         datasets::atomic::write_json(&dir.join("config.json"), config)?;
         crate::plot::write_trajectory_png(&dir.join("trajectory.png"), &result.trajectory, &result.reference, truth)?;
-        crate::map_output::write_map(dir, &result.point_map, &result.corner_landmarks, &result.plane_landmarks)?;
+        let map = crate::map_output::SavedMap {
+            corners: result.corner_landmarks.clone(),
+            walls: result.plane_landmarks.clone(),
+            points: result.point_map.clone(),
+            keyframes: result.keyframes.clone(),
+            truth_origin: result.truth_origin,
+        };
+        crate::map_output::write_map(dir, &map)?;
         if let Some(m) = metrics {
             datasets::atomic::write_json(&dir.join("metrics.json"), m)?;
         }

@@ -87,6 +87,9 @@ pub trait SensorSequence {
     fn calibration(&self) -> &Calibration;
     fn odometry(&self) -> &[OdometrySample];
     fn imu(&self) -> &[ImuSample];
+    /// World from robot in the ground truth's own frame (a generated
+    /// building's, a motion-capture system's); `run::truth_in_run_frame`
+    /// puts it in a run's world.
     fn ground_truth(&self) -> Option<&Trajectory>;
     /// The `world.json` of a generated sequence (levels for per-level metrics).
     fn world_description(&self) -> Option<PathBuf>;
@@ -251,14 +254,14 @@ impl SensorSequence for RecordedSequence {
     }
 }
 
-/// The ground truth in the frame of the robot's pose at `start` (where
-/// localization puts its world), interpolated there.
-pub fn anchored(truth: &Trajectory, start: f64) -> Trajectory {
-    let k = truth.stamps.partition_point(|&t| t < start);
-    let origin = match (k.checked_sub(1), truth.stamps.get(k)) {
-        (Some(a), Some(&tb)) if tb > start => {
+/// The ground truth's pose at `time`, interpolated between its samples
+/// (the nearest end outside them).
+pub fn truth_at(truth: &Trajectory, time: f64) -> Pose3 {
+    let k = truth.stamps.partition_point(|&t| t < time);
+    match (k.checked_sub(1), truth.stamps.get(k)) {
+        (Some(a), Some(&tb)) if tb > time => {
             let ta = truth.stamps[a];
-            let s = (start - ta) / (tb - ta);
+            let s = (time - ta) / (tb - ta);
             let (pa, pb) = (&truth.poses[a], &truth.poses[k]);
             Pose3::from_parts(
                 pa.translation.vector.lerp(&pb.translation.vector, s).into(),
@@ -266,7 +269,11 @@ pub fn anchored(truth: &Trajectory, start: f64) -> Trajectory {
             )
         }
         _ => truth.poses[k.min(truth.len() - 1)],
-    };
+    }
+}
+
+/// `truth` in the frame whose pose in the truth's frame is `origin`.
+pub fn relative_to(truth: &Trajectory, origin: &Pose3) -> Trajectory {
     let inverse = origin.inverse();
     Trajectory { stamps: truth.stamps.clone(), poses: truth.poses.iter().map(|p| inverse * p).collect() }
 }

@@ -367,7 +367,8 @@ fn localize_stage(
         // Without ground truth (a recorded sequence may have none) there are
         // trajectories but no errors.
         let m: Option<RunMetrics> = metrics(&sequence, &result)?;
-        write_outputs(&dir, &plan.localize, &result, sequence.ground_truth.as_ref(), m.as_ref())?;
+        let truth = localize::run::truth_in_run_frame(&sequence, &result);
+        write_outputs(&dir, &plan.localize, &result, truth.as_ref(), m.as_ref())?;
         let n = result.frames.len();
         Ok(LocalizeOutputs {
             backbone: trained.backbone,

@@ -4,7 +4,7 @@
 use datasets::generate::{DatagenConfig, generate};
 use localize::config::LocalizeConfig;
 use localize::corner_source::CornerSource;
-use localize::run::{metrics, run_sequence, run_sequence_in_map, write_outputs};
+use localize::run::{MapStart, metrics, run_sequence, run_sequence_in_map, truth_in_run_frame, write_outputs};
 use localize::sequence::RecordedSequence;
 
 /// The package folder, read when the test runs (cargo sets it), so that a
@@ -14,6 +14,11 @@ fn manifest_dir() -> std::path::PathBuf {
 }
 
 fn short_sequence(dir: &std::path::Path, frames: usize) -> RecordedSequence {
+    short_sequence_with(dir, frames, &|_| {})
+}
+
+/// As `short_sequence`, with `change` applied to the settings.
+fn short_sequence_with(dir: &std::path::Path, frames: usize, change: &dyn Fn(&mut DatagenConfig)) -> RecordedSequence {
     let mut config = DatagenConfig::default();
     config.detection.images = 2;
     config.detection.train = 1;
@@ -21,6 +26,7 @@ fn short_sequence(dir: &std::path::Path, frames: usize) -> RecordedSequence {
     // Ten times the paper's speed: 0.5 m between frames, the first 15 m of
     // the route (the first level, the first ramp and part of the second level).
     config.sequence.speed_mps = 0.5;
+    change(&mut config);
     generate(dir, &config).unwrap();
     RecordedSequence::open(&dir.join("sequence")).unwrap()
 }
@@ -58,11 +64,50 @@ fn fused_localization_beats_odometry_and_imu_on_a_generated_route() {
     // The route again in that map: its first frame is placed by the map, not taken as the start.
     let saved = localize::map_output::read_map(&out).unwrap();
     assert_eq!(saved.points, result.point_map.iter().map(round_to_f32).collect::<Vec<_>>());
-    let again = run_sequence_in_map(&sequence, &mut CornerSource::Off, &config, Some(saved), false).unwrap();
+    let in_map = Some(MapStart { map: saved, start: None });
+    let again = run_sequence_in_map(&sequence, &mut CornerSource::Off, &config, in_map, false).unwrap();
+    let placed = again.placement.expect("the first scan is placed in the map");
+    assert!(placed.pose.translation.vector.norm() < 0.03, "placed at {:?}", placed.pose);
     assert!(again.frames[0].scan_correspondences >= 50, "{}", again.frames[0].status.label());
     assert!(!matches!(again.frames[0].status, localize::pipeline::FrameStatus::FirstFrame));
     let m = metrics(&sequence, &again).unwrap().unwrap();
     assert!(m.fused.overall.ate_rmse < 0.05, "in the map, without the camera: ATE {} m", m.fused.overall.ate_rmse);
+}
+
+#[test]
+fn a_sequence_that_starts_elsewhere_is_placed_in_an_earlier_runs_map() {
+    let dir = tempfile::tempdir().unwrap();
+    // The map: the first 15 m of the route, LIDAR and odometry/IMU only.
+    let mapping = short_sequence(&dir.path().join("mapping"), 30);
+    let config = LocalizeConfig::default();
+    let built = run_sequence(&mapping, &mut CornerSource::Off, &config, false).unwrap();
+    let out = dir.path().join("map-run");
+    write_outputs(&out, &config, &built, truth_in_run_frame(&mapping, &built).as_ref(), None).unwrap();
+    let map = localize::map_output::read_map(&out).unwrap();
+    assert!(map.keyframes.len() >= 12, "{} keyframes along 15 m", map.keyframes.len());
+    assert_eq!(map.truth_origin, Some(datasets::math::Pose3::identity()));
+    // Another day: other noise and people, the robot starting 6.3 m along the route.
+    let later = short_sequence_with(&dir.path().join("later"), 14, &|c| {
+        c.seed = 8;
+        c.sequence.start_m = 6.3;
+    });
+    let first_truth = later.ground_truth.as_ref().unwrap().poses[0];
+    assert!((first_truth.translation.vector.x - 6.3).abs() < 1e-9, "{first_truth:?}");
+    let in_map = Some(MapStart { map: map.clone(), start: None });
+    let run = run_sequence_in_map(&later, &mut CornerSource::Off, &config, in_map, false).unwrap();
+    let placed = run.placement.expect("placed");
+    let error = first_truth.inverse() * placed.pose;
+    assert!(error.translation.vector.norm() < 0.05, "placed {:?}, truth {first_truth:?}", placed.pose);
+    assert!(error.rotation.angle() < 1f64.to_radians(), "heading off by {} rad", error.rotation.angle());
+    let m = metrics(&later, &run).unwrap().expect("the map knows its ground-truth origin");
+    assert!(m.fused.overall.ate_rmse < 0.05, "in the map: ATE {} m", m.fused.overall.ate_rmse);
+    // A start given 4 m off the route is searched only near there: refused, not misplaced.
+    let wrong =
+        datasets::math::Pose3::from_parts(datasets::math::Vec3::new(6.3, 4.0, 0.0).into(), first_truth.rotation);
+    let refused =
+        run_sequence_in_map(&later, &mut CornerSource::Off, &config, Some(MapStart { map, start: Some(wrong) }), false);
+    let why = refused.err().expect("refused").to_string();
+    assert!(why.contains("placing the first scan") && why.contains("agrees with the map"), "{why}");
 }
 
 /// A map point as `map.ply` stores it (single precision).

@@ -39,6 +39,11 @@ struct Args {
     /// Robot speed in m/s (default 0.05, the paper's).
     #[arg(long)]
     speed: Option<f64>,
+    /// Start this many metres along the route (default 0): a second sequence
+    /// of the same building for `localize run --map`; the ground truth stays
+    /// in the building's frame.
+    #[arg(long, value_name = "METRES")]
+    start_m: Option<f64>,
     /// LIDAR rate in Hz, and the camera's when it has none of its own (default 1, the paper's).
     #[arg(long)]
     rate: Option<f64>,
@@ -84,6 +89,9 @@ fn run_main() -> Result<()> {
     }
     if let Some(speed) = args.speed {
         config.sequence.speed_mps = speed;
+    }
+    if let Some(start) = args.start_m {
+        config.sequence.start_m = start;
     }
     if let Some(rate) = args.rate {
         config.sequence.rate_hz = rate;

@@ -75,6 +75,15 @@ pub struct SequenceConfig {
     /// the pose at its own time and named by it. 0, the paper's, takes scan
     /// and image together.
     pub camera_delay_s: f64,
+    /// The robot starts this far along the route (a second sequence of the
+    /// same building that starts elsewhere, for relocalization in a map).
+    /// The ground truth stays in the building's frame.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub start_m: f64,
+}
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
 }
 
 impl Default for SequenceConfig {
@@ -87,6 +96,7 @@ impl Default for SequenceConfig {
             camera_rate_hz: None,
             turn_radius_m: 1.2,
             camera_delay_s: 0.0,
+            start_m: 0.0,
         }
     }
 }
@@ -170,6 +180,12 @@ impl DatagenConfig {
             return Err(InvalidSetting::field(
                 "sequence.camera_delay_s",
                 format!("{} s outside [-1, 1]", s.camera_delay_s),
+            ));
+        }
+        if !(s.start_m >= 0.0 && s.start_m.is_finite()) {
+            return Err(InvalidSetting::field(
+                "sequence.start_m",
+                format!("{} m is not a distance along the route", s.start_m),
             ));
         }
         if !(s.turn_radius_m > 0.1 && s.turn_radius_m < 3.0) {

@@ -65,7 +65,11 @@ pub(super) fn write_sequence(dir: &Path, world: &World, rig: &Rig, config: &Data
     let s = &config.sequence;
     let route = Route::new(&world.layout.route, s.turn_radius_m);
     let length = route.length();
-    let whole_route = (length / s.speed_mps * s.rate_hz).floor() as usize + 1;
+    if s.start_m >= length {
+        let problem = format!("sequence.start_m {} m is past the end of the {length:.1} m route", s.start_m);
+        return Err(DataError::invalid(dir, problem));
+    }
+    let whole_route = ((length - s.start_m) / s.speed_mps * s.rate_hz).floor() as usize + 1;
     let count = s.frames.unwrap_or_else(|| whole_route.min(s.max_scans.unwrap_or(usize::MAX)));
     let frames_after_route_end = count.saturating_sub(whole_route);
     let layout = &world.layout;
@@ -80,7 +84,7 @@ pub(super) fn write_sequence(dir: &Path, world: &World, rig: &Rig, config: &Data
         ));
     }
     let pose_at = |t: f64| -> Pose3 {
-        let (xy, heading) = route.at(s.speed_mps * t.max(0.0));
+        let (xy, heading) = route.at(s.start_m + s.speed_mps * t.max(0.0));
         pose_on_floor(layout, xy, heading).expect("the route was checked to stay inside the free space")
     };
     let last_scan = (count - 1) as f64 / s.rate_hz;

@@ -12,7 +12,7 @@ use localize::corner_source::CornerSource;
 use localize::eval::{Alignment, ErrorSummary, compare};
 use localize::levels::LevelMap;
 use localize::pipeline::FrameStatus;
-use localize::run::{metrics, run_sequence_in_map, write_outputs};
+use localize::run::{MapStart, metrics, run_sequence_in_map, truth_in_run_frame, write_outputs};
 use localize::sensor_faults::{SensorFaults, WithFaults};
 use localize::sequence::{RecordedSequence, SensorSequence, WithTruth};
 
@@ -174,10 +174,16 @@ struct RunArgs {
     /// odometry/IMU alone.
     #[arg(long)]
     without_camera: bool,
-    /// Start from the map an earlier run wrote (its output folder, with
-    /// map.json and map.ply); this sequence must start where that run's did.
+    /// Localize in the map an earlier run of the same building wrote (its
+    /// output folder, with map.json and map.ply): the first scan is placed
+    /// in it, searched within 1 m of the mapping run's route at every
+    /// heading, and the trajectory is in the map's frame.
     #[arg(long)]
     map: Option<PathBuf>,
+    /// Where in the map the sequence starts, roughly (x, y, z in metres and
+    /// heading in degrees, the map's frame): the search stays near it.
+    #[arg(long, value_name = "X,Y,Z,YAW_DEG", requires = "map", value_parser = parse_start_pose, allow_hyphen_values = true)]
+    start_pose: Option<datasets::math::Pose3>,
     /// Simulate a LIDAR blackout: drop the scans from START to END seconds
     /// after the first scan (repeatable), to see how the run holds up.
     #[arg(long, value_name = "START:END", value_parser = localize::sensor_faults::parse_gap)]
@@ -452,13 +458,8 @@ fn run(args: &RunArgs) -> Result<()> {
         (None, None) => anyhow::bail!("give --sequence DIR or --bag PATH"),
     };
     if let Some(gt) = &args.gt {
-        let (mut truth, _) = read_trajectory(gt)?;
+        let (truth, _) = read_trajectory(gt)?;
         truth.check_increasing(gt)?;
-        if args.bag.is_some() {
-            // A recording's world is the robot's pose at its first scan.
-            let first = sequence.frame_stamps()[0];
-            truth = localize::sequence::anchored(&truth, first);
-        }
         sequence = Box::new(WithTruth { inner: sequence, truth });
     }
     let faults = SensorFaults { lidar_gaps: args.lidar_gap.clone(), camera_stop_s: args.camera_stop };
@@ -470,13 +471,34 @@ fn run(args: &RunArgs) -> Result<()> {
         Some(labels) => CornerSource::labels(labels, args.label_noise_px, args.seed)?,
         None => CornerSource::detector(&args.checkpoint, args.backend.device(), config.fusion.min_score)?,
     };
-    let map = args.map.as_deref().map(localize::map_output::read_map).transpose()?;
+    let map = match &args.map {
+        Some(dir) => Some(MapStart { map: localize::map_output::read_map(dir)?, start: args.start_pose }),
+        None => None,
+    };
     let progress = !std::env::var("CI").is_ok_and(|v| v == "true");
     let result = run_sequence_in_map(&*sequence, &mut source, &config, map, progress)?;
+    if let Some(p) = &result.placement {
+        let (t, yaw) = (p.pose.translation.vector, p.pose.rotation.euler_angles().2.to_degrees());
+        println!(
+            "placed in the map at ({:.3}, {:.3}, {:.3}) m, heading {yaw:.1} deg: {:.0}% of the first scan agrees              with the map ({:.0}% at the best other place; {} candidates)",
+            t.x,
+            t.y,
+            t.z,
+            100.0 * p.agreement,
+            100.0 * p.runner_up,
+            p.candidates
+        );
+    }
     let metrics = metrics(&*sequence, &result)?;
-    write_outputs(&args.out, &config, &result, sequence.ground_truth(), metrics.as_ref())?;
+    let truth = truth_in_run_frame(&*sequence, &result);
+    write_outputs(&args.out, &config, &result, truth.as_ref(), metrics.as_ref())?;
     println!("wrote {}", args.out.join("trajectory.txt").display());
-    if sequence.ground_truth().is_some() && metrics.is_none() {
+    if sequence.ground_truth().is_some() && result.truth_origin.is_none() {
+        eprintln!(
+            "warning: the map was written by a run without ground truth, so this run's ground truth cannot be put \
+             in the map's frame: no metrics.json"
+        );
+    } else if sequence.ground_truth().is_some() && metrics.is_none() {
         eprintln!("warning: the ground truth does not overlap the run's times (within 0.01 s): no metrics.json");
     }
     // Frames that lost their corners or their cloud, with the first reason:
@@ -522,6 +544,21 @@ fn run(args: &RunArgs) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// `X,Y,Z,YAW_DEG` as a pose (level: roll and pitch 0).
+fn parse_start_pose(text: &str) -> std::result::Result<datasets::math::Pose3, String> {
+    let values: Vec<f64> = text
+        .split(',')
+        .map(|v| v.trim().parse::<f64>().map_err(|_| format!("`{v}` is not a number")))
+        .collect::<std::result::Result<_, _>>()?;
+    match values[..] {
+        [x, y, z, yaw] if values.iter().all(|v| v.is_finite()) => Ok(datasets::math::Pose3::from_parts(
+            datasets::math::Vec3::new(x, y, z).into(),
+            localize::euler::rotation(0.0, 0.0, yaw.to_radians()),
+        )),
+        _ => Err(format!("`{text}`: expected four finite numbers X,Y,Z,YAW_DEG")),
+    }
 }
 
 /// Scans along the route of `world`, `frames` of them evenly spaced.
