@@ -26,6 +26,10 @@ fn bad_flags_and_settings_are_named() {
     assert!(!ok && err.contains("world.building: 2000000 outside"), "{err}");
     let (ok, err) = datagen(&["--out", o, "--building", "-3"]);
     assert!(!ok && err.contains("--building"), "{err}");
+    let (ok, err) = datagen(&["--out", o, "--start-m", "-2"]);
+    assert!(!ok && err.contains("sequence.start_m: -2 m"), "{err}");
+    let (ok, err) = datagen(&["--out", o, "--start-m", "5000", "--images", "0", "--train", "0"]);
+    assert!(!ok && err.contains("past the end of the") && err.contains("route"), "{err}");
     let (ok, err) = datagen(&["--out", o, "--colour", "red"]);
     assert!(!ok && err.contains("--colour"), "{err}");
     assert!(!out.exists(), "nothing is written for a bad command line");

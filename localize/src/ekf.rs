@@ -98,12 +98,15 @@ impl Ekf {
         pose_of(&self.x)
     }
 
-    /// Moves the pose to `pose` (a start found in a map), keeping the rest
-    /// of the state and the covariance.
-    pub fn place(&mut self, pose: &Pose3) {
+    /// Moves the pose to `pose` (a start found in a map) with `covariance`
+    /// (x, y, z, roll, pitch, yaw), uncorrelated with the rest of the state.
+    pub fn place(&mut self, pose: &Pose3, covariance: &nalgebra::Matrix6<f64>) {
         let (roll, pitch, yaw) = pose.rotation.euler_angles();
         let t = pose.translation.vector;
         self.x.fixed_rows_mut::<6>(0).copy_from_slice(&[t.x, t.y, t.z, roll, pitch, yaw]);
+        self.p.fixed_rows_mut::<6>(0).fill(0.0);
+        self.p.fixed_columns_mut::<6>(0).fill(0.0);
+        self.p.fixed_view_mut::<6, 6>(0, 0).copy_from(&(0.5 * (covariance + covariance.transpose())));
     }
 
     /// Propagates by `dt` with the body angular rate `gyro` and wheel speed `speed`.

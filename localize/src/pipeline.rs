@@ -178,6 +178,8 @@ pub struct Localizer {
 
 /// How far from a given start's heading the search turns.
 const START_WINDOW_DEG: f64 = 30.0;
+/// Variance of a start taken as given, unsearched (0.1 m, 0.1 rad).
+const START_UNSEARCHED_VARIANCE: f64 = 0.01;
 
 impl Localizer {
     pub fn new(config: &LocalizeConfig, calibration: Calibration) -> Result<Self> {
@@ -219,7 +221,8 @@ impl Localizer {
         if let Some(start) = start
             && self.point_map.is_empty()
         {
-            return Ok(Placement { pose: *start, agreement: 0.0, runner_up: 0.0, candidates: 0 });
+            let covariance = nalgebra::Matrix6::from_diagonal_element(START_UNSEARCHED_VARIANCE);
+            return Ok(Placement { pose: *start, agreement: 0.0, runner_up: 0.0, candidates: 0, covariance });
         }
         if self.point_map.is_empty() {
             return Err(

@@ -7,7 +7,7 @@
 
 use datasets::InvalidSetting;
 use datasets::math::{Pose3, Vec3};
-use nalgebra::Vector6;
+use nalgebra::{Matrix6, Vector6};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -101,6 +101,11 @@ pub struct Placement {
     /// The best distinct placement's agreement (0 when there is none).
     pub runner_up: f64,
     pub candidates: usize,
+    /// Covariance of the pose (x, y, z, roll, pitch, yaw): the final
+    /// registration's, bounded by the search (a direction the scan does not
+    /// observe, a corridor's axis, is as uncertain as the search was wide).
+    #[serde(skip)]
+    pub covariance: Matrix6<f64>,
 }
 
 fn serialize_pose<S: serde::Serializer>(pose: &Pose3, s: S) -> std::result::Result<S::Ok, S::Error> {
@@ -162,20 +167,18 @@ pub fn relocalize(
     }
     let refiner = ScanMatcher::new(ScanMatchConfig { iterations: 30, horizontal_only: false, ..matching.clone() })
         .map_err(|e| e.to_string())?;
-    let mut refined: Vec<(f64, Vector6<f64>)> = starts
+    let mut refined: Vec<(f64, Vector6<f64>, Matrix6<f64>)> = starts
         .par_iter()
         .map(|s| {
-            let x = refiner.register(map, scan, s).map_or(*s, |fix| fix.pose);
-            (agreement(map, &walls, &x, matching, config.agree_m), x)
+            let (x, information) =
+                refiner.register(map, scan, s).map_or((*s, Matrix6::zeros()), |f| (f.pose, f.information));
+            (agreement(map, &walls, &x, matching, config.agree_m), x, information)
         })
         .collect();
     refined.sort_by(|a, b| b.0.total_cmp(&a.0));
-    let (best_score, best) = refined[0];
-    let runner_up = refined
-        .iter()
-        .skip(1)
-        .find(|(_, x)| !same_place(x, &best, config.distinct_m, config.distinct_deg))
-        .map_or(0.0, |r| r.0);
+    let (best_score, best, information) = refined[0];
+    let runner = refined.iter().skip(1).find(|(_, x, _)| !same_place(x, &best, config.distinct_m, config.distinct_deg));
+    let runner_up = runner.map_or(0.0, |r| r.0);
     let place =
         |x: &Vector6<f64>| format!("({:.2}, {:.2}, {:.2}) m, heading {:.0} deg", x[0], x[1], x[2], x[5].to_degrees());
     if best_score < config.min_agreement {
@@ -188,17 +191,24 @@ pub fn relocalize(
             config.search_radius_m
         ));
     }
-    if runner_up >= config.ambiguity_ratio * best_score {
+    if let Some((score, x, _)) = runner
+        && *score >= config.ambiguity_ratio * best_score
+    {
         return Err(format!(
-            "ambiguous: {:.0}% of the first scan agrees with the map at {}, but {:.0}% elsewhere: \
+            "ambiguous: {:.0}% of the first scan agrees with the map at {}, but {:.0}% at {}: \
              give --start-pose near the right one",
             100.0 * best_score,
             place(&best),
-            100.0 * runner_up
+            100.0 * score,
+            place(x)
         ));
     }
     let pose = Pose3::from_parts(Vec3::new(best[0], best[1], best[2]).into(), rotation(best[3], best[4], best[5]));
-    Ok(Placement { pose, agreement: best_score, runner_up, candidates: candidates.len() })
+    let (metres, radians) = (config.search_radius_m.max(config.grid_m), config.yaw_step_deg.to_radians());
+    let (m, r) = (metres.powi(-2), radians.powi(-2));
+    let search = Matrix6::from_diagonal(&Vector6::new(m, m, m, r, r, r));
+    let covariance = (information + search).try_inverse().unwrap_or_else(|| search.map(|v| 1.0 / v));
+    Ok(Placement { pose, agreement: best_score, runner_up, candidates: candidates.len(), covariance })
 }
 
 /// Every grid position within the search radius of every seed (its height,

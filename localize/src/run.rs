@@ -154,8 +154,8 @@ pub fn run_sequence_in_map(
                 Err(why) => Err(format!("its cloud is unusable: {why}")),
             };
             let placement = placed.map_err(|why| crate::error::LocalizeError::Relocalize { stamp, why })?;
-            fused.place(&placement.pose);
-            dead_reckoning.place(&placement.pose);
+            fused.place(&placement.pose, &placement.covariance);
+            dead_reckoning.place(&placement.pose, &placement.covariance);
             result.placement = Some(placement);
         }
         let camera = CameraCorners { pixels, lidar_from_camera, detect_ms };
@@ -261,13 +261,15 @@ pub struct RunMetrics {
 pub fn metrics(sequence: &dyn SensorSequence, result: &RunResult) -> Result<Option<RunMetrics>> {
     let Some(truth) = truth_in_run_frame(sequence, result) else { return Ok(None) };
     let truth = &truth;
+    // Levels are looked up where the ground truth's frame (world.json's) puts the robot.
+    let in_world_json = sequence.ground_truth().unwrap_or(truth);
     let levels = match sequence.world_description() {
         Some(world) => Some(LevelMap::read(&world)?),
         None => None,
     };
     let measure = |estimate: &Trajectory| -> Option<TrajectoryMetrics> {
         let comparison = compare(truth, estimate, Alignment::None, 0.01).ok()?;
-        let per_level = levels.as_ref().map(|l| l.per_segment(&comparison, truth)).unwrap_or_default();
+        let per_level = levels.as_ref().map(|l| l.per_segment(&comparison, in_world_json)).unwrap_or_default();
         Some(TrajectoryMetrics { overall: comparison.summary, levels: per_level })
     };
     let (Some(fused), Some(odometry_imu)) = (measure(&result.trajectory), measure(&result.reference)) else {

@@ -58,6 +58,15 @@ fn bad_input_gives_a_message_naming_the_file() {
     let missing = dir.path().join("missing.txt");
     let out = localize(&["eval", "--gt", missing.to_str().unwrap(), "--est", missing.to_str().unwrap()]);
     assert!(String::from_utf8_lossy(&out.stderr).contains("missing.txt"));
+    // A start in a map needs the map, and four numbers.
+    let out = localize(&["run", "--sequence", "s", "--out", "o", "--start-pose", "1,2,0,90"]);
+    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("--map"));
+    let out = localize(&["run", "--sequence", "s", "--out", "o", "--map", "m", "--start-pose", "1,2,x"]);
+    let m = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && m.contains("--start-pose") && m.contains("`x` is not a number"), "{m}");
+    let out = localize(&["run", "--sequence", "s", "--out", "o", "--map", "m", "--start-pose", "1,2,0"]);
+    let m = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && m.contains("X,Y,Z,YAW_DEG"), "{m}");
     let out = localize(&["eval", "--gt", "a", "--est", "b", "--align", "affine"]);
     assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("affine"));
     // Ground truth with a repeated stamp (another pose) or out of order: an

@@ -101,6 +101,14 @@ fn a_sequence_that_starts_elsewhere_is_placed_in_an_earlier_runs_map() {
     assert!(error.rotation.angle() < 1f64.to_radians(), "heading off by {} rad", error.rotation.angle());
     let m = metrics(&later, &run).unwrap().expect("the map knows its ground-truth origin");
     assert!(m.fused.overall.ate_rmse < 0.05, "in the map: ATE {} m", m.fused.overall.ate_rmse);
+    // Per level: the levels under the robot's true positions in the building.
+    let levels = localize::levels::LevelMap::read(&dir.path().join("later/sequence/world.json")).unwrap();
+    let mut expected: Vec<String> =
+        later.ground_truth.as_ref().unwrap().positions().filter_map(|p| levels.segment_at(p.x, p.y)).collect();
+    expected.sort();
+    expected.dedup();
+    let names: Vec<String> = m.fused.levels.iter().map(|l| l.name.clone()).collect();
+    assert_eq!(names, expected);
     // A start given 4 m off the route is searched only near there: refused, not misplaced.
     let wrong =
         datasets::math::Pose3::from_parts(datasets::math::Vec3::new(6.3, 4.0, 0.0).into(), first_truth.rotation);

@@ -70,6 +70,12 @@ pub fn generate(out: &Path, config: &DatagenConfig) -> Result<Summary> {
     config.validate().map_err(|e| DataError::setting(out, e))?;
     let world = World::new(&config.world, key(config.seed, stream::APPEARANCE, 0));
     let rig = Rig::default();
+    let route_m = crate::world::route::Route::new(&world.layout.route, config.sequence.turn_radius_m).length();
+    if config.sequence.start_m >= route_m {
+        let problem =
+            format!("sequence.start_m {} m is past the end of the {route_m:.1} m route", config.sequence.start_m);
+        return Err(DataError::invalid(out, problem));
+    }
     // The folder is one run: an earlier run's parts go first (a longer
     // sequence would leave its extra frames), and `datagen.json` comes last,
     // so that a killed run never looks finished.

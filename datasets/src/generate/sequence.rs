@@ -65,10 +65,6 @@ pub(super) fn write_sequence(dir: &Path, world: &World, rig: &Rig, config: &Data
     let s = &config.sequence;
     let route = Route::new(&world.layout.route, s.turn_radius_m);
     let length = route.length();
-    if s.start_m >= length {
-        let problem = format!("sequence.start_m {} m is past the end of the {length:.1} m route", s.start_m);
-        return Err(DataError::invalid(dir, problem));
-    }
     let whole_route = ((length - s.start_m) / s.speed_mps * s.rate_hz).floor() as usize + 1;
     let count = s.frames.unwrap_or_else(|| whole_route.min(s.max_scans.unwrap_or(usize::MAX)));
     let frames_after_route_end = count.saturating_sub(whole_route);

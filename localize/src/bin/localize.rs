@@ -480,10 +480,14 @@ fn run(args: &RunArgs) -> Result<()> {
     if let Some(p) = &result.placement {
         let (t, yaw) = (p.pose.translation.vector, p.pose.rotation.euler_angles().2.to_degrees());
         println!(
-            "placed in the map at ({:.3}, {:.3}, {:.3}) m, heading {yaw:.1} deg: {:.0}% of the first scan agrees              with the map ({:.0}% at the best other place; {} candidates)",
+            "placed in the map at ({:.3}, {:.3}, {:.3}) m, heading {yaw:.1} deg (standard deviations {:.3} / {:.3} m, \
+             {:.2} deg): {:.0}% of the first scan agrees with the map ({:.0}% at the best other place; {} candidates)",
             t.x,
             t.y,
             t.z,
+            p.covariance[(0, 0)].sqrt(),
+            p.covariance[(1, 1)].sqrt(),
+            p.covariance[(5, 5)].sqrt().to_degrees(),
             100.0 * p.agreement,
             100.0 * p.runner_up,
             p.candidates
