@@ -25,6 +25,35 @@ impl InvalidSetting {
         Self { field: String::new(), problem: problem.into() }
     }
 
+    /// `Ok` when `value` is finite and in (0, hi]; a NaN fails.
+    pub fn positive(field: &str, value: f64, hi: f64) -> Result<(), Self> {
+        Self::range(field, value, 0.0, hi, true)
+    }
+
+    /// `Ok` when `value` is finite and in [0, hi].
+    pub fn non_negative(field: &str, value: f64, hi: f64) -> Result<(), Self> {
+        Self::range(field, value, 0.0, hi, false)
+    }
+
+    /// `Ok` when `value` is finite, above `lo` (or at it, unless `lo_open`)
+    /// and at most `hi`; the message gives the interval.
+    pub fn range(field: &str, value: f64, lo: f64, hi: f64, lo_open: bool) -> Result<(), Self> {
+        let above = if lo_open { value > lo } else { value >= lo };
+        if value.is_finite() && above && value <= hi {
+            return Ok(());
+        }
+        Err(Self::field(field, format!("{value} outside {}{lo}, {hi}]", if lo_open { "(" } else { "[" })))
+    }
+
+    /// `Ok` when the count is in lo..=hi.
+    pub fn count(field: &str, value: usize, lo: usize, hi: usize) -> Result<(), Self> {
+        if (lo..=hi).contains(&value) {
+            Ok(())
+        } else {
+            Err(Self::field(field, format!("{value} outside {lo}..={hi}")))
+        }
+    }
+
     /// The same problem seen from the section that holds this one.
     pub fn within(self, section: &str) -> Self {
         let field = if self.field.is_empty() { section.to_string() } else { format!("{section}.{}", self.field) };
@@ -44,5 +73,15 @@ mod tests {
         let between = InvalidSetting::between("train split 5 is larger than the 3 images");
         assert_eq!(between.to_string(), "train split 5 is larger than the 3 images");
         assert_eq!(between.within("detection").to_string(), "detection: train split 5 is larger than the 3 images");
+    }
+
+    #[test]
+    fn range_checks_name_the_interval_and_refuse_nan() {
+        assert_eq!(InvalidSetting::positive("a", 0.5, 1.0), Ok(()));
+        assert_eq!(InvalidSetting::positive("a", 0.0, 1.0).unwrap_err().to_string(), "a: 0 outside (0, 1]");
+        assert_eq!(InvalidSetting::non_negative("a", 0.0, 1.0), Ok(()));
+        assert!(InvalidSetting::non_negative("a", f64::NAN, 1.0).is_err());
+        assert!(InvalidSetting::positive("a", f64::INFINITY, f64::INFINITY).is_err());
+        assert_eq!(InvalidSetting::count("k", 0, 1, 9).unwrap_err().to_string(), "k: 0 outside 1..=9");
     }
 }

@@ -53,23 +53,9 @@ impl LocalizeConfig {
     /// Checks every setting against the range where it means something; the
     /// message names the section and field (`normals.neighbours`).
     pub fn validate(&self) -> Result<(), InvalidSetting> {
-        let range = |name: &str, v: f64, lo: f64, hi: f64, lo_open: bool| -> Result<(), InvalidSetting> {
-            let above = if lo_open { v > lo } else { v >= lo };
-            if v.is_finite() && above && v <= hi {
-                Ok(())
-            } else {
-                Err(InvalidSetting::field(name, format!("{v} outside {}{lo}, {hi}]", if lo_open { "(" } else { "[" })))
-            }
-        };
-        let positive = |name: &str, v: f64, hi: f64| range(name, v, 0.0, hi, true);
-        let non_negative = |name: &str, v: f64, hi: f64| range(name, v, 0.0, hi, false);
-        let count = |name: &str, v: usize, lo: usize, hi: usize| -> Result<(), InvalidSetting> {
-            if (lo..=hi).contains(&v) {
-                Ok(())
-            } else {
-                Err(InvalidSetting::field(name, format!("{v} outside {lo}..={hi}")))
-            }
-        };
+        let range = InvalidSetting::range;
+        let (positive, non_negative, count) =
+            (InvalidSetting::positive, InvalidSetting::non_negative, InvalidSetting::count);
         non_negative("voxel.size_m", self.voxel.size_m, 5.0)?;
         count("normals.neighbours", self.normals.neighbours, 3, 1000)?;
         let p = &self.planes;

@@ -67,26 +67,19 @@ impl Default for RelocalizeConfig {
 
 impl RelocalizeConfig {
     pub fn validate(&self) -> Result<(), InvalidSetting> {
-        let check = |name: &str, ok: bool, v: f64| {
-            if ok { Ok(()) } else { Err(InvalidSetting::field(name, format!("{v} is out of range"))) }
-        };
-        let within = |v: f64, lo: f64, hi: f64| v.is_finite() && v > lo && v <= hi;
-        check(
-            "search_radius_m",
-            self.search_radius_m.is_finite() && (0.0..=20.0).contains(&self.search_radius_m),
-            self.search_radius_m,
-        )?;
-        check("grid_m", within(self.grid_m, 0.0, 5.0), self.grid_m)?;
-        check("yaw_step_deg", within(self.yaw_step_deg, 0.0, 90.0), self.yaw_step_deg)?;
-        check("sample_points", (10..=100_000).contains(&self.sample_points), self.sample_points as f64)?;
-        check("agree_m", within(self.agree_m, 0.0, 2.0), self.agree_m)?;
-        check("refine", (1..=1000).contains(&self.refine), self.refine as f64)?;
-        check("min_agreement", within(self.min_agreement, 0.0, 1.0), self.min_agreement)?;
-        check("ambiguity_ratio", within(self.ambiguity_ratio, 0.0, 1.0), self.ambiguity_ratio)?;
-        check("distinct_m", within(self.distinct_m, 0.0, 100.0), self.distinct_m)?;
-        check("distinct_deg", within(self.distinct_deg, 0.0, 180.0), self.distinct_deg)?;
-        check("keyframe_m", within(self.keyframe_m, 0.0, 100.0), self.keyframe_m)?;
-        check("keyframe_turn_deg", within(self.keyframe_turn_deg, 0.0, 180.0), self.keyframe_turn_deg)
+        let (positive, count) = (InvalidSetting::positive, InvalidSetting::count);
+        InvalidSetting::non_negative("search_radius_m", self.search_radius_m, 20.0)?;
+        positive("grid_m", self.grid_m, 5.0)?;
+        positive("yaw_step_deg", self.yaw_step_deg, 90.0)?;
+        count("sample_points", self.sample_points, 10, 100_000)?;
+        positive("agree_m", self.agree_m, 2.0)?;
+        count("refine", self.refine, 1, 1000)?;
+        positive("min_agreement", self.min_agreement, 1.0)?;
+        positive("ambiguity_ratio", self.ambiguity_ratio, 1.0)?;
+        positive("distinct_m", self.distinct_m, 100.0)?;
+        positive("distinct_deg", self.distinct_deg, 180.0)?;
+        positive("keyframe_m", self.keyframe_m, 100.0)?;
+        positive("keyframe_turn_deg", self.keyframe_turn_deg, 180.0)
     }
 }
 

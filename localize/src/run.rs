@@ -275,19 +275,26 @@ pub fn metrics(sequence: &dyn SensorSequence, result: &RunResult) -> Result<Opti
     let (Some(fused), Some(odometry_imu)) = (measure(&result.trajectory), measure(&result.reference)) else {
         return Ok(None);
     };
-    let n = result.frames.len().max(1) as f64;
     Ok(Some(RunMetrics {
         fused,
         odometry_imu,
         frames: result.frames.len(),
-        fused_frames: result
-            .frames
-            .iter()
-            .filter(|f| matches!(f.status, crate::pipeline::FrameStatus::Fused { .. }))
-            .count(),
+        fused_frames: result.fused_frames(),
         corrected_frames: result.frames.iter().filter(|f| f.status.corrected()).count(),
-        mean_total_ms: result.frames.iter().map(|f| f.total_ms).sum::<f64>() / n,
+        mean_total_ms: result.mean_total_ms(),
     }))
+}
+
+impl RunResult {
+    /// Frames corrected with the camera's corners in the solve.
+    pub fn fused_frames(&self) -> usize {
+        self.frames.iter().filter(|f| matches!(f.status, crate::pipeline::FrameStatus::Fused { .. })).count()
+    }
+
+    /// A frame's mean time, all stages.
+    pub fn mean_total_ms(&self) -> f64 {
+        self.frames.iter().map(|f| f.total_ms).sum::<f64>() / self.frames.len().max(1) as f64
+    }
 }
 
 /// The longest time between two scans and the scan that ended it, when it

@@ -78,13 +78,7 @@ impl Default for ScanMatchConfig {
 
 impl ScanMatchConfig {
     pub fn validate(&self) -> Result<(), InvalidSetting> {
-        let positive = |name: &str, v: f64, hi: f64| {
-            if v.is_finite() && v > 0.0 && v <= hi {
-                Ok(())
-            } else {
-                Err(InvalidSetting::field(name, format!("{v} outside (0, {hi}]")))
-            }
-        };
+        let positive = InvalidSetting::positive;
         positive("map_voxel_m", self.map_voxel_m, 10.0)?;
         positive("source_voxel_m", self.source_voxel_m, 10.0)?;
         positive("max_curvature", self.max_curvature, 1.0)?;
@@ -106,13 +100,7 @@ impl ScanMatchConfig {
                 format!("{} outside (0, map_voxel_m = {}]", self.max_distance_m, self.map_voxel_m),
             ));
         }
-        let count = |name: &str, v: usize, lo: usize, hi: usize| {
-            if (lo..=hi).contains(&v) {
-                Ok(())
-            } else {
-                Err(InvalidSetting::field(name, format!("{v} outside {lo}..={hi}")))
-            }
-        };
+        let count = InvalidSetting::count;
         count("points_per_voxel", self.points_per_voxel, 1, 10_000)?;
         count("iterations", self.iterations, 1, 1000)?;
         count("min_correspondences", self.min_correspondences, 6, 10_000_000)

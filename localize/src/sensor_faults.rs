@@ -2,7 +2,8 @@
 //! when the LIDAR goes dark for a while or the camera stops
 //! (`localize run --lidar-gap 20:25 --camera-stop 30`). Times count from the
 //! recording's first scan, so that the same options fit a bag's absolute
-//! clock and a generated sequence's.
+//! clock and a generated sequence's. `WithChanges` plays them in, and
+//! replaces the ground truth with `--gt`'s.
 
 use std::path::PathBuf;
 
@@ -41,19 +42,22 @@ pub fn parse_gap(text: &str) -> std::result::Result<[f64; 2], String> {
     Ok([start, end])
 }
 
-/// A recording with `faults` played into it.
-pub struct WithFaults {
+/// A recording as the user changed it: its ground truth replaced (`--gt`)
+/// and `faults` played into it (`--lidar-gap`, `--camera-stop`).
+pub struct WithChanges {
     pub inner: Box<dyn SensorSequence>,
+    /// Replaces the recording's own ground truth when given.
+    pub truth: Option<Trajectory>,
     pub faults: SensorFaults,
 }
 
-impl WithFaults {
+impl WithChanges {
     fn first_scan(&self) -> f64 {
         self.inner.frame_stamps().first().copied().unwrap_or(0.0)
     }
 }
 
-impl SensorSequence for WithFaults {
+impl SensorSequence for WithChanges {
     fn calibration(&self) -> &Calibration {
         self.inner.calibration()
     }
@@ -64,7 +68,7 @@ impl SensorSequence for WithFaults {
         self.inner.imu()
     }
     fn ground_truth(&self) -> Option<&Trajectory> {
-        self.inner.ground_truth()
+        self.truth.as_ref().or_else(|| self.inner.ground_truth())
     }
     fn world_description(&self) -> Option<PathBuf> {
         self.inner.world_description()

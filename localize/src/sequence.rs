@@ -277,33 +277,3 @@ pub fn relative_to(truth: &Trajectory, origin: &Pose3) -> Trajectory {
     let inverse = origin.inverse();
     Trajectory { stamps: truth.stamps.clone(), poses: truth.poses.iter().map(|p| inverse * p).collect() }
 }
-
-/// A sequence with its ground truth replaced (`localize run --gt FILE`).
-pub struct WithTruth {
-    pub inner: Box<dyn SensorSequence>,
-    pub truth: Trajectory,
-}
-
-impl SensorSequence for WithTruth {
-    fn calibration(&self) -> &Calibration {
-        self.inner.calibration()
-    }
-    fn odometry(&self) -> &[OdometrySample] {
-        self.inner.odometry()
-    }
-    fn imu(&self) -> &[ImuSample] {
-        self.inner.imu()
-    }
-    fn ground_truth(&self) -> Option<&Trajectory> {
-        Some(&self.truth)
-    }
-    fn world_description(&self) -> Option<PathBuf> {
-        self.inner.world_description()
-    }
-    fn frame_stamps(&self) -> Vec<f64> {
-        self.inner.frame_stamps()
-    }
-    fn for_each_frame(&self, visit: &mut dyn FnMut(FrameInput) -> Result<()>) -> Result<()> {
-        self.inner.for_each_frame(visit)
-    }
-}

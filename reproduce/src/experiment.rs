@@ -369,19 +369,14 @@ fn localize_stage(
         let m: Option<RunMetrics> = metrics(&sequence, &result)?;
         let truth = localize::run::truth_in_run_frame(&sequence, &result);
         write_outputs(&dir, &plan.localize, &result, truth.as_ref(), m.as_ref())?;
-        let n = result.frames.len();
         Ok(LocalizeOutputs {
             backbone: trained.backbone,
             dir: dir.clone(),
             fused: m.as_ref().map(|m| error_rows(&m.fused)).unwrap_or_default(),
             odometry_imu: m.as_ref().map(|m| error_rows(&m.odometry_imu)).unwrap_or_default(),
-            frames: n,
-            fused_frames: result
-                .frames
-                .iter()
-                .filter(|f| matches!(f.status, localize::pipeline::FrameStatus::Fused { .. }))
-                .count(),
-            mean_total_ms: result.frames.iter().map(|f| f.total_ms).sum::<f64>() / n.max(1) as f64,
+            frames: result.frames.len(),
+            fused_frames: result.fused_frames(),
+            mean_total_ms: result.mean_total_ms(),
             seconds: started.elapsed().as_secs_f64(),
         })
     })

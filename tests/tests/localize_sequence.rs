@@ -146,12 +146,12 @@ fn without_the_camera_scan_matching_keeps_the_lidar_estimate_well_ahead_of_odome
 
 #[test]
 fn a_lidar_blackout_and_a_camera_that_stops_leave_the_run_going_and_bounded() {
-    use localize::sensor_faults::{SensorFaults, WithFaults};
+    use localize::sensor_faults::{SensorFaults, WithChanges};
     let dir = tempfile::tempdir().unwrap();
     let sequence = short_sequence(dir.path(), 30);
     let labels = dir.path().join("sequence/labels.json");
     let faults = SensorFaults { lidar_gaps: vec![[8.0, 14.0]], camera_stop_s: Some(20.0) };
-    let faulty = WithFaults { inner: Box::new(sequence), faults };
+    let faulty = WithChanges { inner: Box::new(sequence), truth: None, faults };
     let mut corners = CornerSource::labels(&labels, 2.0, 1).unwrap();
     let result = run_sequence(&faulty, &mut corners, &LocalizeConfig::default(), false).unwrap();
     // One scan a second: those at 8..13 s are lost, the run goes on after them.

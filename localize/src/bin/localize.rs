@@ -13,8 +13,8 @@ use localize::eval::{Alignment, ErrorSummary, compare};
 use localize::levels::LevelMap;
 use localize::pipeline::FrameStatus;
 use localize::run::{MapStart, metrics, run_sequence_in_map, truth_in_run_frame, write_outputs};
-use localize::sensor_faults::{SensorFaults, WithFaults};
-use localize::sequence::{RecordedSequence, SensorSequence, WithTruth};
+use localize::sensor_faults::{SensorFaults, WithChanges};
+use localize::sequence::{RecordedSequence, SensorSequence};
 
 #[derive(Parser)]
 #[command(name = "localize", about = "Corner-fusion localization: camera corners + LIDAR planes")]
@@ -457,14 +457,17 @@ fn run(args: &RunArgs) -> Result<()> {
         }
         (None, None) => anyhow::bail!("give --sequence DIR or --bag PATH"),
     };
-    if let Some(gt) = &args.gt {
-        let (truth, _) = read_trajectory(gt)?;
-        truth.check_increasing(gt)?;
-        sequence = Box::new(WithTruth { inner: sequence, truth });
-    }
+    let truth = match &args.gt {
+        Some(gt) => {
+            let (truth, _) = read_trajectory(gt)?;
+            truth.check_increasing(gt)?;
+            Some(truth)
+        }
+        None => None,
+    };
     let faults = SensorFaults { lidar_gaps: args.lidar_gap.clone(), camera_stop_s: args.camera_stop };
-    if !faults.is_empty() {
-        sequence = Box::new(WithFaults { inner: sequence, faults });
+    if truth.is_some() || !faults.is_empty() {
+        sequence = Box::new(WithChanges { inner: sequence, truth, faults });
     }
     let mut source = match &args.corners_from_labels {
         _ if args.without_camera => CornerSource::Off,
