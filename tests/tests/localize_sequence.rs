@@ -109,12 +109,15 @@ fn a_sequence_that_starts_elsewhere_is_placed_in_an_earlier_runs_map() {
     expected.dedup();
     let names: Vec<String> = m.fused.levels.iter().map(|l| l.name.clone()).collect();
     assert_eq!(names, expected);
-    // A start given 4 m off the route is searched only near there: refused, not misplaced.
+    // A start given where the map has nothing (30 m off the route) is searched only near there: refused.
     let wrong =
-        datasets::math::Pose3::from_parts(datasets::math::Vec3::new(6.3, 4.0, 0.0).into(), first_truth.rotation);
+        datasets::math::Pose3::from_parts(datasets::math::Vec3::new(6.3, 30.0, 0.0).into(), first_truth.rotation);
     let refused =
         run_sequence_in_map(&later, &mut CornerSource::Off, &config, Some(MapStart { map, start: Some(wrong) }), false);
-    let why = refused.err().expect("refused").to_string();
+    let why = match refused {
+        Ok(r) => panic!("placed at {:?}", r.placement),
+        Err(e) => e.to_string(),
+    };
     assert!(why.contains("placing the first scan") && why.contains("agrees with the map"), "{why}");
 }
 
