@@ -1,5 +1,7 @@
 //! `infer --checkpoint DIR IMAGE...` prints detections as JSON;
-//! `infer eval --checkpoint DIR --data DIR` scores a checkpoint on a test set.
+//! `infer eval --checkpoint DIR --data DIR` scores a checkpoint on a test set;
+//! `infer eval-points --checkpoint DIR --images DIR --points DIR` scores it
+//! on photographs with point labels, beside Shi-Tomasi and Harris corners.
 
 use std::path::{Path, PathBuf};
 
@@ -23,6 +25,36 @@ struct Cli {
 enum Command {
     /// Evaluate a checkpoint on a COCO-form test set: AP@0.5, precision, recall, pixel error.
     Eval(EvalArgs),
+    /// Score confident detections on photographs against point labels
+    /// (NAME.csv beside NAME.jpg/png; York Urban's junctions), beside
+    /// Shi-Tomasi, Harris and random points given the same count per image.
+    EvalPoints(EvalPointsArgs),
+}
+
+#[derive(Debug, Args)]
+#[command(allow_negative_numbers = true)]
+struct EvalPointsArgs {
+    #[arg(long)]
+    checkpoint: PathBuf,
+    /// A folder of photographs (.jpg, .jpeg, .png); those without a points file are skipped.
+    #[arg(long)]
+    images: PathBuf,
+    /// A folder of NAME.csv point files: a header starting `x,y`, then x,y in
+    /// MATLAB pixel convention (centres at integers from 1), as York Urban's
+    /// junctions_derived/.
+    #[arg(long)]
+    points: PathBuf,
+    /// A point within this many pixels of a labelled point is a hit.
+    #[arg(long, default_value_t = 12.0, value_parser = datasets::cli::non_negative)]
+    radius: f64,
+    /// Detections at or above this score are the detector's points.
+    #[arg(long, default_value_t = 0.5)]
+    min_score: f32,
+    /// Print one JSON object instead of a table.
+    #[arg(long)]
+    json: bool,
+    #[arg(long, value_enum, default_value_t)]
+    backend: CpuBackend,
 }
 
 #[derive(Debug, Args)]
@@ -74,6 +106,7 @@ fn run_main() -> Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Some(Command::Eval(args)) => eval(args),
+        Some(Command::EvalPoints(args)) => eval_points(args),
         None => detect(cli.detect),
     }
 }
@@ -142,5 +175,118 @@ fn eval(args: EvalArgs) -> Result<()> {
         let error = m.mean_pixel_error.map_or("none found".to_string(), |e| format!("{e:.2} px"));
         println!("pixel error  {error} (mean over true positives)");
     }
+    Ok(())
+}
+
+/// The photographs of `dir` that have a points file in `points`, in name order.
+fn labelled_photos(dir: &Path, points: &Path) -> Result<Vec<(PathBuf, PathBuf)>> {
+    let entries = std::fs::read_dir(dir).with_context(|| format!("reading {}", dir.display()))?;
+    let mut found = Vec::new();
+    for entry in entries {
+        let path = entry.with_context(|| format!("reading {}", dir.display()))?.path();
+        let photo = path.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase());
+        if !matches!(photo.as_deref(), Some("jpg" | "jpeg" | "png")) {
+            continue;
+        }
+        let Some(stem) = path.file_stem().and_then(|s| s.to_str()) else { continue };
+        let labels = points.join(format!("{stem}.csv"));
+        if labels.is_file() {
+            found.push((path, labels));
+        }
+    }
+    found.sort();
+    if found.is_empty() {
+        bail!("no photograph in {} has a NAME.csv in {}", dir.display(), points.display());
+    }
+    Ok(found)
+}
+
+#[derive(Serialize)]
+struct MethodScores {
+    method: &'static str,
+    points: usize,
+    labels: usize,
+    points_per_image: f64,
+    precision: Option<f64>,
+    recall: Option<f64>,
+}
+
+fn eval_points(args: EvalPointsArgs) -> Result<()> {
+    use infer::corner_response::{CornerResponse, strongest_corners};
+    use infer::point_eval::{PointScores, read_matlab_points};
+    if !(0.0..=1.0).contains(&args.min_score) {
+        bail!("--min-score {} is outside 0..1", args.min_score);
+    }
+    let photos = labelled_photos(&args.images, &args.points)?;
+    let mut detector = load(&args.checkpoint, args.backend)?;
+    detector.config.detection.score_threshold = args.min_score;
+    let radius = args.radius as f32;
+    const METHODS: [&str; 4] = ["detector", "shi-tomasi", "harris", "random"];
+    let mut totals = [PointScores::default(); 4];
+    let bar = indicatif::ProgressBar::new(photos.len() as u64);
+    if std::env::var("CI").is_ok_and(|v| v == "true") {
+        bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
+    }
+    for (k, (photo, labels_path)) in photos.iter().enumerate() {
+        let image = datasets::atomic::read_image(photo)?;
+        let labels = read_matlab_points(labels_path)?;
+        let detections = detector.detect(&image);
+        let detected: Vec<[f32; 2]> =
+            detections.iter().map(|d| [(d.bbox.x1 + d.bbox.x2) / 2.0, (d.bbox.y1 + d.bbox.y2) / 2.0]).collect();
+        let count = detected.len();
+        let gray = image.to_luma8();
+        let (w, h) = (image.width() as f32, image.height() as f32);
+        // Random points from a generator seeded by the image's place in the list.
+        let mut state = 0x9E37_79B9_7F4A_7C15u64 ^ k as u64;
+        let mut uniform = || {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let random: Vec<[f32; 2]> = (0..count).map(|_| [uniform() * w, uniform() * h]).collect();
+        let per_method = [
+            detected,
+            strongest_corners(&gray, CornerResponse::ShiTomasi, count, radius, 3),
+            strongest_corners(&gray, CornerResponse::Harris, count, radius, 3),
+            random,
+        ];
+        for (total, points) in totals.iter_mut().zip(&per_method) {
+            total.add(&PointScores::of(points, &labels, radius));
+        }
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let rows: Vec<MethodScores> = METHODS
+        .iter()
+        .zip(&totals)
+        .map(|(method, s)| MethodScores {
+            method,
+            points: s.points,
+            labels: s.labels,
+            points_per_image: s.points as f64 / photos.len() as f64,
+            precision: s.precision(),
+            recall: s.recall(),
+        })
+        .collect();
+    if args.json {
+        let out = serde_json::json!({"images": photos.len(), "radius_px": args.radius, "min_score": args.min_score, "methods": rows});
+        println!("{}", serde_json::to_string_pretty(&out)?);
+        return Ok(());
+    }
+    println!(
+        "{} photos, {} labelled points; detector score >= {}; a hit is within {} px",
+        photos.len(),
+        totals[0].labels,
+        args.min_score,
+        args.radius
+    );
+    println!("{:<12} {:>14} {:>10} {:>8}", "method", "points/image", "precision", "recall");
+    let percent = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{:.1}%", 100.0 * v));
+    for r in &rows {
+        println!("{:<12} {:>14.1} {:>10} {:>8}", r.method, r.points_per_image, percent(r.precision), percent(r.recall));
+    }
+    println!(
+        "(each photo: shi-tomasi and harris give the detector's count, at least {} px apart; random the same count, anywhere)",
+        args.radius
+    );
     Ok(())
 }
