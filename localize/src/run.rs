@@ -85,7 +85,8 @@ pub fn run_sequence_in_map(
         None => (Vec::new(), sequence.ground_truth().map(|t| truth_at(t, start_time)), None),
     };
     check_logs_cover(&stamps, sequence)?;
-    // The world frame is the robot's pose at the first frame.
+    // The world frame is the robot's pose at the first frame; in a given
+    // map, the map's, the first frame placing the filters there.
     let start = datasets::math::Pose3::identity();
     let mut fused = Ekf::new(config.ekf.clone(), &start, start_time);
     let mut dead_reckoning = Ekf::new(config.ekf.clone(), &start, start_time);
