@@ -77,9 +77,9 @@ pub struct Ekf {
 impl Ekf {
     /// Starts at `start` (the world frame is the robot's start pose) at `time`.
     pub fn new(config: EkfConfig, start: &Pose3, time: f64) -> Self {
-        let (roll, pitch, yaw) = start.rotation.euler_angles();
-        let t = start.translation.vector;
-        let x = State::from_column_slice(&[t.x, t.y, t.z, roll, pitch, yaw, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0]);
+        let mut x = State::zeros();
+        x.fixed_rows_mut::<6>(0).copy_from(&pose_entries(start));
+        x[SCALE] = 1.0;
         let mut p = Covariance::zeros();
         for k in 0..6 {
             p[(k, k)] = 1e-8;
@@ -101,9 +101,7 @@ impl Ekf {
     /// Moves the pose to `pose` (a start found in a map) with `covariance`
     /// (x, y, z, roll, pitch, yaw), uncorrelated with the rest of the state.
     pub fn place(&mut self, pose: &Pose3, covariance: &nalgebra::Matrix6<f64>) {
-        let (roll, pitch, yaw) = pose.rotation.euler_angles();
-        let t = pose.translation.vector;
-        self.x.fixed_rows_mut::<6>(0).copy_from_slice(&[t.x, t.y, t.z, roll, pitch, yaw]);
+        self.x.fixed_rows_mut::<6>(0).copy_from(&pose_entries(pose));
         self.p.fixed_rows_mut::<6>(0).fill(0.0);
         self.p.fixed_columns_mut::<6>(0).fill(0.0);
         self.p.fixed_view_mut::<6, 6>(0, 0).copy_from(&(0.5 * (covariance + covariance.transpose())));
@@ -226,7 +224,19 @@ fn normalise(x: &mut State) {
 }
 
 pub fn pose_of(x: &State) -> Pose3 {
-    Pose3::from_parts(Vec3::new(x[0], x[1], x[2]).into(), rotation(x[3], x[4], x[5]))
+    pose_from_entries(&pose_vector(x))
+}
+
+/// The pose of x, y, z, roll, pitch, yaw (ZYX Euler angles).
+pub fn pose_from_entries(v: &SVector<f64, 6>) -> Pose3 {
+    Pose3::from_parts(Vec3::new(v[0], v[1], v[2]).into(), rotation(v[3], v[4], v[5]))
+}
+
+/// A pose as x, y, z, roll, pitch, yaw: the state's first six entries.
+pub fn pose_entries(pose: &Pose3) -> SVector<f64, 6> {
+    let (roll, pitch, yaw) = pose.rotation.euler_angles();
+    let t = pose.translation.vector;
+    SVector::<f64, 6>::new(t.x, t.y, t.z, roll, pitch, yaw)
 }
 
 /// The state's pose part as a vector: x, y, z, roll, pitch, yaw.

@@ -218,16 +218,15 @@ impl Localizer {
     /// map without surface points cannot be searched: a given start is then
     /// taken as it is.
     pub fn place_in_map(&self, geometry: &Geometry, start: Option<&Pose3>) -> std::result::Result<Placement, String> {
-        if let Some(start) = start
-            && self.point_map.is_empty()
-        {
+        if self.point_map.is_empty() {
+            let Some(start) = start else {
+                return Err(
+                    "the map has no surface points to search (written with scan matching off): give --start-pose"
+                        .into(),
+                );
+            };
             let covariance = nalgebra::Matrix6::from_diagonal_element(START_UNSEARCHED_VARIANCE);
             return Ok(Placement { pose: *start, agreement: 0.0, runner_up: 0.0, candidates: 0, covariance });
-        }
-        if self.point_map.is_empty() {
-            return Err(
-                "the map has no surface points to search (written with scan matching off): give --start-pose".into()
-            );
         }
         if !self.scan_matcher.config().enabled {
             return Err("placing a scan in the map needs scan matching (`scan_match.enabled`)".into());

@@ -102,8 +102,7 @@ pub struct Placement {
 }
 
 fn serialize_pose<S: serde::Serializer>(pose: &Pose3, s: S) -> std::result::Result<S::Ok, S::Error> {
-    let (t, q) = (pose.translation.vector, pose.rotation.coords);
-    [t.x, t.y, t.z, q.x, q.y, q.z, q.w].serialize(s)
+    crate::map_output::pose_array(pose).serialize(s)
 }
 
 /// The poses a run keeps for relocalization: the first, then one whenever
@@ -196,7 +195,7 @@ pub fn relocalize(
             place(x)
         ));
     }
-    let pose = Pose3::from_parts(Vec3::new(best[0], best[1], best[2]).into(), rotation(best[3], best[4], best[5]));
+    let pose = crate::ekf::pose_from_entries(&best);
     let (metres, radians) = (config.search_radius_m.max(config.grid_m), config.yaw_step_deg.to_radians());
     let (m, r) = (metres.powi(-2), radians.powi(-2));
     let search = Matrix6::from_diagonal(&Vector6::new(m, m, m, r, r, r));

@@ -374,12 +374,6 @@ mod tests {
         ScanPoints { points, normals }
     }
 
-    fn pose_vector(pose: &Pose3) -> Vector6<f64> {
-        let (roll, pitch, yaw) = pose.rotation.euler_angles();
-        let t = pose.translation.vector;
-        Vector6::new(t.x, t.y, t.z, roll, pitch, yaw)
-    }
-
     #[test]
     fn a_room_seen_from_a_moved_pose_registers_back_to_that_pose() {
         let mut rng = ChaCha8Rng::seed_from_u64(11);
@@ -396,7 +390,7 @@ mod tests {
             normals: seen.normals.iter().map(|n| inverse.rotation * n).collect(),
         };
         let fix = matcher.register(&map, &scan, &Vector6::zeros()).expect("a closed room registers");
-        let error = fix.difference(&pose_vector(&truth));
+        let error = fix.difference(&crate::ekf::pose_entries(&truth));
         assert!(error.fixed_rows::<3>(0).norm() < 2e-3, "translation off by {error:?}");
         assert!(error.fixed_rows::<3>(3).norm() < 1e-3, "rotation off by {error:?}");
         // Exact surfaces; the residue is where a voxel straddles an edge of the room or the box.
