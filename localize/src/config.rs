@@ -98,6 +98,7 @@ impl LocalizeConfig {
         positive("plane_landmarks.max_offset_spread_m", w.max_offset_spread_m, 100.0)?;
         positive("plane_landmarks.max_normal_spread_deg", w.max_normal_spread_deg, 180.0)?;
         non_negative("plane_landmarks.max_wall_tilt_deg", w.max_wall_tilt_deg, 90.0)?;
+        non_negative("plane_landmarks.rectilinear_gate_deg", w.rectilinear_gate_deg, 45.0)?;
         let o = &self.pose;
         positive("pose.corner_sigma_m", o.corner_sigma_m, 100.0)?;
         positive("pose.huber", o.huber, 1000.0)?;
@@ -118,6 +119,7 @@ impl LocalizeConfig {
             ("ekf.gravity_sigma_rad", e.gravity_sigma_rad),
             ("ekf.gravity_gate_mps2", e.gravity_gate_mps2),
             ("ekf.gravity_gate_chi2", e.gravity_gate_chi2),
+            ("ekf.ramp_slip_per_s", e.ramp_slip_per_s),
         ] {
             non_negative(name, v, 1000.0)?;
         }

@@ -47,6 +47,9 @@ pub struct EkfConfig {
     /// Gravity readings farther than this squared Mahalanobis distance from
     /// the state are skipped (chi-square, 2 degrees of freedom: 13.8 = 0.1%).
     pub gravity_gate_chi2: f64,
+    /// How much the wheels' speed scale may change on a 10 degree slope
+    /// within a second, in proportion to the slope: wheels slip on ramps.
+    pub ramp_slip_per_s: f64,
 }
 
 impl Default for EkfConfig {
@@ -62,6 +65,7 @@ impl Default for EkfConfig {
             gravity_sigma_rad: 0.003,
             gravity_gate_mps2: 0.3,
             gravity_gate_chi2: 13.8,
+            ramp_slip_per_s: 0.03,
         }
     }
 }
@@ -138,7 +142,9 @@ impl Ekf {
         for k in 6..9 {
             q[(k, k)] = c.bias_walk.powi(2) * dt;
         }
-        q[(SCALE, SCALE)] = c.scale_walk.powi(2) * dt;
+        let slope = (self.x[3].cos() * self.x[4].cos()).clamp(-1.0, 1.0).acos();
+        let slip = c.ramp_slip_per_s * slope / 10f64.to_radians();
+        q[(SCALE, SCALE)] = (c.scale_walk.powi(2) + slip * slip) * dt;
         self.x = f(&self.x);
         self.p = jacobian * self.p * jacobian.transpose() + q;
         self.time += dt;
@@ -263,4 +269,32 @@ pub fn propagate(x: &State, gyro: &Vec3, speed: f64, dt: f64) -> State {
     out[4] = pitch;
     out[5] = yaw;
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The wheel scale's variance after `seconds` standing still at `pitch_deg`.
+    fn scale_variance_after(pitch_deg: f64, seconds: f64) -> f64 {
+        let start = pose_from_entries(&SVector::<f64, 6>::new(0.0, 0.0, 0.0, 0.0, pitch_deg.to_radians(), 0.0));
+        let mut ekf = Ekf::new(EkfConfig::default(), &start, 0.0);
+        for _ in 0..100 {
+            ekf.predict(&Vec3::zeros(), 0.0, seconds / 100.0);
+        }
+        ekf.p[(SCALE, SCALE)]
+    }
+
+    #[test]
+    fn on_a_slope_the_wheel_scale_may_change_as_fast_as_the_slip_says() {
+        let c = EkfConfig::default();
+        let flat = scale_variance_after(0.0, 2.0);
+        // (The central-difference Jacobian's rounding, 1e-10 a step, compounds.)
+        assert!((flat - (c.initial_scale.powi(2) + c.scale_walk.powi(2) * 2.0)).abs() < 1e-10, "{flat}");
+        // 10 degrees: the slip's variance per second, for two seconds; 5 degrees: a quarter of it.
+        let steep = scale_variance_after(10.0, 2.0) - flat;
+        assert!((steep - 2.0 * c.ramp_slip_per_s.powi(2)).abs() < 1e-9, "{steep}");
+        let gentle = scale_variance_after(5.0, 2.0) - flat;
+        assert!((gentle - 0.5 * c.ramp_slip_per_s.powi(2)).abs() < 1e-9, "{gentle}");
+    }
 }

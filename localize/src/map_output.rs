@@ -34,8 +34,12 @@ pub struct MapFile {
     pub format: String,
     pub frame: String,
     pub corners: Vec<Landmark>,
-    /// Walls: the points p with normal . p = distance.
+    /// Walls and floors: the points p with normal . p = distance.
     pub walls: Vec<PlaneLandmark>,
+    /// The building's axis (degrees, modulo 90): walls near it are squared
+    /// with it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub wall_axis_deg: Option<f64>,
     /// The first this many vertices of `map.ply` are the point map's.
     pub points: usize,
     /// Robot poses along the mapping run (every metre and on turns): where
@@ -53,6 +57,8 @@ pub struct MapFile {
 pub struct SavedMap {
     pub corners: Vec<Landmark>,
     pub walls: Vec<PlaneLandmark>,
+    /// Radians.
+    pub wall_axis: Option<f64>,
     pub points: Vec<MapPoint>,
     pub keyframes: Vec<Pose3>,
     pub truth_origin: Option<Pose3>,
@@ -115,6 +121,7 @@ pub fn write_map(dir: &Path, map: &SavedMap) -> datasets::Result<()> {
         frame: "world = the robot's pose at the first scan (as trajectory.txt)".into(),
         corners: map.corners.clone(),
         walls: map.walls.clone(),
+        wall_axis_deg: map.wall_axis.map(f64::to_degrees),
         points: map.points.len(),
         keyframes: map.keyframes.iter().map(pose_array).collect(),
         truth_origin: map.truth_origin.as_ref().map(pose_array),
@@ -150,8 +157,11 @@ pub fn read_map(dir: &Path) -> datasets::Result<SavedMap> {
     if let Some(k) = file.corners.iter().position(|c| !finite(&c.position)) {
         return Err(DataError::invalid(&json_path, format!("corner {k} has a non-finite position")));
     }
-    if let Some(k) = file.walls.iter().position(|w| !finite(&w.normal) || !w.distance.is_finite()) {
+    if let Some(k) = file.walls.iter().position(|w| !w.is_finite()) {
         return Err(DataError::invalid(&json_path, format!("wall {k} has a non-finite plane")));
+    }
+    if file.wall_axis_deg.is_some_and(|a| !a.is_finite()) {
+        return Err(DataError::invalid(&json_path, "wall_axis_deg is not a finite angle"));
     }
     let ply_path = dir.join("map.ply");
     let bytes = std::fs::read(&ply_path).map_err(|e| DataError::io(&ply_path, e))?;
@@ -178,7 +188,8 @@ pub fn read_map(dir: &Path) -> datasets::Result<SavedMap> {
         }
         points.push(MapPoint { position, normal });
     }
-    Ok(SavedMap { corners: file.corners, walls: file.walls, points, keyframes, truth_origin })
+    let wall_axis = file.wall_axis_deg.map(f64::to_radians);
+    Ok(SavedMap { corners: file.corners, walls: file.walls, wall_axis, points, keyframes, truth_origin })
 }
 
 #[cfg(test)]
@@ -196,6 +207,7 @@ mod tests {
         let map = SavedMap {
             corners: Vec::new(),
             walls: Vec::new(),
+            wall_axis: Some(0.3),
             points: points.clone(),
             keyframes: vec![Pose3::identity(), turned],
             truth_origin: Some(turned),
@@ -206,15 +218,17 @@ mod tests {
         assert_eq!(back.keyframes[0], Pose3::identity());
         assert!((back.keyframes[1].inverse() * turned).translation.vector.norm() < 1e-12);
         assert!(back.truth_origin.unwrap().rotation.angle_to(&turned.rotation) < 1e-12);
+        assert!((back.wall_axis.unwrap() - 0.3).abs() < 1e-12);
         // A version-1 map (no keyframes, no origin) still reads.
         let json = dir.path().join("map.json");
         let mut old: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
         old["format"] = "corner-fusion map 1".into();
         old.as_object_mut().unwrap().remove("keyframes");
         old.as_object_mut().unwrap().remove("truth_origin");
+        old.as_object_mut().unwrap().remove("wall_axis_deg");
         std::fs::write(&json, old.to_string()).unwrap();
         let v1 = read_map(dir.path()).unwrap();
-        assert!(v1.keyframes.is_empty() && v1.truth_origin.is_none() && v1.points == points);
+        assert!(v1.keyframes.is_empty() && v1.truth_origin.is_none() && v1.wall_axis.is_none() && v1.points == points);
         // A keyframe that is no pose is named.
         old["keyframes"] = serde_json::json!([[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 2.0]]);
         std::fs::write(&json, old.to_string()).unwrap();

@@ -38,6 +38,10 @@ pub struct PointNormal {
     /// Surface variation lambda_min / (lambda_0 + lambda_1 + lambda_2):
     /// 0 on a perfect plane, 1/3 for isotropic scatter.
     pub curvature: f64,
+    /// The point's signed distance along `normal` from its neighbours' mean:
+    /// mostly its own range noise. `point - offset * normal` is the point
+    /// on its neighbourhood's plane.
+    pub offset: f64,
 }
 
 pub struct NormalEstimator {
@@ -87,7 +91,8 @@ impl NormalEstimator {
                     if normal.dot(&(sensor - p.cast::<f64>().coords)) < 0.0 {
                         normal = -normal;
                     }
-                    PointNormal { normal, curvature }
+                    let offset = normal.dot(&(p.cast::<f64>().coords - mean));
+                    PointNormal { normal, curvature, offset }
                 })
             })
             .collect())

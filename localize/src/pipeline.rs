@@ -207,6 +207,7 @@ impl Localizer {
         self.keyframes = map.keyframes;
         self.map.landmarks = map.corners;
         self.plane_map.landmarks = map.walls;
+        self.plane_map.axis = map.wall_axis;
         let (points, normals): (Vec<Vec3>, Vec<Vec3>) = map.points.iter().map(|p| (p.position, p.normal)).unzip();
         self.point_map.insert(&points, &normals, &Pose3::identity());
         self.given_map = true;
@@ -441,13 +442,13 @@ impl Localizer {
                 if !self.plane_map.is_trusted(k) {
                     return None;
                 }
-                let landmark = &self.plane_map.landmarks[k];
-                let same_side = (predicted.rotation * plane.normal).dot(&landmark.normal) >= 0.0;
+                let (normal, distance) = self.plane_map.plane(k);
+                let same_side = (predicted.rotation * plane.normal).dot(&normal) >= 0.0;
                 Some(PlaneCorrespondence {
                     normal_in_robot: if same_side { plane.normal } else { -plane.normal },
                     point_in_robot: plane.point,
-                    normal_in_world: landmark.normal,
-                    distance_in_world: landmark.distance,
+                    normal_in_world: normal,
+                    distance_in_world: distance,
                 })
             })
             .collect()

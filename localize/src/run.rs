@@ -32,6 +32,8 @@ pub struct RunResult {
     /// The maps at the end of the run.
     pub corner_landmarks: Vec<crate::landmarks::Landmark>,
     pub plane_landmarks: Vec<crate::plane_landmarks::PlaneLandmark>,
+    /// The building's axis the walls were squared with (radians).
+    pub wall_axis: Option<f64>,
     /// The point map's surface points (empty without scan matching).
     pub point_map: Vec<crate::point_map::MapPoint>,
     /// Poses a later run is placed from: the given map's, then this run's.
@@ -104,6 +106,7 @@ pub fn run_sequence_in_map(
         frames: Vec::new(),
         corner_landmarks: Vec::new(),
         plane_landmarks: Vec::new(),
+        wall_axis: None,
         point_map: Vec::new(),
         keyframes: Vec::new(),
         truth_origin,
@@ -181,6 +184,7 @@ pub fn run_sequence_in_map(
     }
     result.corner_landmarks = localizer.map.landmarks.clone();
     result.plane_landmarks = localizer.plane_map.landmarks.clone();
+    result.wall_axis = localizer.plane_map.axis;
     result.point_map = localizer.point_map.points().copied().collect();
     keyframes.extend(keyframes_along(&result.trajectory.poses, &config.relocalize));
     result.keyframes = keyframes;
@@ -380,6 +384,7 @@ pub fn write_outputs(
         let map = crate::map_output::SavedMap {
             corners: result.corner_landmarks.clone(),
             walls: result.plane_landmarks.clone(),
+            wall_axis: result.wall_axis,
             points: result.point_map.clone(),
             keyframes: result.keyframes.clone(),
             truth_origin: result.truth_origin,

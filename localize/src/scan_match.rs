@@ -122,19 +122,41 @@ impl ScanPoints {
         normals: &[PointNormal],
         robot_from_lidar: &Pose3,
     ) -> Self {
-        let mut seen = rustc_hash::FxHashSet::default();
-        let (mut out_points, mut out_normals) = (Vec::new(), Vec::new());
-        for (p, n) in points.iter().zip(normals) {
+        // Per cube, the point nearest its centre, both by where the point's
+        // surface is (`PointNormal::offset`). Keyed on the noisy position, a
+        // cube the surface barely enters would keep only points the noise
+        // pushed into it; the first point seen in sweep order would sit on
+        // the cube's edge where the sweep enters it, the same side in every
+        // cube and every scan. Either biased the registration's heading
+        // (results log, 2026-12-03, the scan's thinning).
+        let mut best: rustc_hash::FxHashMap<[i64; 3], (f64, usize)> = rustc_hash::FxHashMap::default();
+        for (k, (p, n)) in points.iter().zip(normals).enumerate() {
             if n.curvature > config.max_curvature || !n.normal.iter().all(|v| v.is_finite()) {
                 continue;
             }
             let p = p.cast::<f64>();
-            let key = (p.coords / config.source_voxel_m).map(|v| v.floor() as i64);
-            if !seen.insert([key.x, key.y, key.z]) {
-                continue;
+            let on_surface = p.coords - n.offset * n.normal;
+            let scaled = on_surface / config.source_voxel_m;
+            let cube = scaled.map(|v| v.floor());
+            // Distance from the centre along the surface only: across it,
+            // nearer the centre would mean pushed there by the noise.
+            let to_centre = cube + Vec3::repeat(0.5) - scaled;
+            let d = (to_centre - to_centre.dot(&n.normal) * n.normal).norm_squared();
+            let key = [cube.x as i64, cube.y as i64, cube.z as i64];
+            match best.get_mut(&key) {
+                Some(b) if b.0 <= d => {}
+                Some(b) => *b = (d, k),
+                None => {
+                    best.insert(key, (d, k));
+                }
             }
-            out_points.push((robot_from_lidar * p).coords);
-            out_normals.push(robot_from_lidar.rotation * n.normal);
+        }
+        let mut chosen: Vec<usize> = best.values().map(|b| b.1).collect();
+        chosen.sort_unstable();
+        let (mut out_points, mut out_normals) = (Vec::new(), Vec::new());
+        for k in chosen {
+            out_points.push((robot_from_lidar * points[k].cast::<f64>()).coords);
+            out_normals.push(robot_from_lidar.rotation * normals[k].normal);
         }
         Self { points: out_points, normals: out_normals }
     }
@@ -350,6 +372,48 @@ mod tests {
     use super::*;
     use rand::rngs::ChaCha8Rng;
     use rand::{RngExt, SeedableRng};
+
+    #[test]
+    fn thinning_keeps_points_whose_range_noise_averages_out() {
+        // A wall 5 cm inside a 20 cm cube's face, seen from the origin with
+        // 3 cm of range noise: cubes keyed on the noisy points would keep,
+        // in the sliver cube beyond the face, only points pushed out.
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let wall_y = 2.05;
+        let points: Vec<Point3<f32>> = (0..12_000)
+            .map(|_| {
+                let on_wall = Vec3::new(rng.random_range(-3.0..3.0), wall_y, rng.random_range(-1.0..1.5));
+                let range = on_wall.norm();
+                let noise: f64 = (0..12).map(|_| rng.random_range(-0.5..0.5)).sum::<f64>() * 0.03;
+                (on_wall * ((range + noise) / range)).cast::<f32>().into()
+            })
+            .collect();
+        let tree = crate::normals::build_tree(&points);
+        let estimator = crate::normals::NormalEstimator::new(crate::normals::NormalConfig::default()).unwrap();
+        let normals = estimator.estimate(&points, &tree, &Vec3::zeros()).unwrap();
+        let config = ScanMatchConfig { max_curvature: 1.0, ..ScanMatchConfig::default() };
+        let scan = ScanPoints::select(&config, &points, &normals, &Pose3::identity());
+        let mean_offset = |kept: &[Vec3]| kept.iter().map(|p| p.y - wall_y).sum::<f64>() / kept.len() as f64;
+        // The mean of n points with 3 cm of noise is known to about 3 cm / sqrt(n).
+        let tolerance = 3.0 * 0.03 / (scan.points.len() as f64).sqrt();
+        let mean = mean_offset(&scan.points);
+        assert!(
+            scan.points.len() > 300 && mean.abs() < tolerance,
+            "{} points, mean offset {mean} m",
+            scan.points.len()
+        );
+        // The first point seen in each cube of the noisy positions, as this
+        // thinning was before: biased well beyond that.
+        let mut seen = rustc_hash::FxHashSet::default();
+        let first_seen: Vec<Vec3> = points
+            .iter()
+            .map(|p| p.cast::<f64>().coords)
+            .filter(|p| seen.insert((p / 0.2).map(|v| v.floor() as i64)))
+            .collect();
+        let before = mean_offset(&first_seen);
+        let tolerance_before = 3.0 * 0.03 / (first_seen.len() as f64).sqrt();
+        assert!(before.abs() > 2.0 * tolerance_before, "first seen per cube: mean offset {before} m");
+    }
 
     /// Points on the floor, the ceiling and four walls of a 6 x 4 x 3 m room
     /// with a 1 m box in a corner (so no direction slides), robot frame at
