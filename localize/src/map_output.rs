@@ -34,7 +34,7 @@ pub struct MapFile {
     pub format: String,
     pub frame: String,
     pub corners: Vec<Landmark>,
-    /// Walls and floors: the points p with normal . p = distance.
+    /// Walls: the points p with normal . p = distance.
     pub walls: Vec<PlaneLandmark>,
     /// The building's axis (degrees, modulo 90): walls near it are squared
     /// with it.
@@ -157,8 +157,8 @@ pub fn read_map(dir: &Path) -> datasets::Result<SavedMap> {
     if let Some(k) = file.corners.iter().position(|c| !finite(&c.position)) {
         return Err(DataError::invalid(&json_path, format!("corner {k} has a non-finite position")));
     }
-    if let Some(k) = file.walls.iter().position(|w| !w.is_finite()) {
-        return Err(DataError::invalid(&json_path, format!("wall {k} has a non-finite plane")));
+    if let Some(k) = file.walls.iter().position(|w| !w.is_valid()) {
+        return Err(DataError::invalid(&json_path, format!("wall {k} has a non-finite plane or no weight")));
     }
     if file.wall_axis_deg.is_some_and(|a| !a.is_finite()) {
         return Err(DataError::invalid(&json_path, "wall_axis_deg is not a finite angle"));
@@ -234,6 +234,20 @@ mod tests {
         std::fs::write(&json, old.to_string()).unwrap();
         let bad = read_map(dir.path()).unwrap_err().to_string();
         assert!(bad.contains("map.json") && bad.contains("keyframe 0"), "{bad}");
+        // A wall whose weight is 0 would divide by it: named.
+        old["keyframes"] = serde_json::json!([]);
+        let wall = |weight: f64| {
+            serde_json::json!([{"normal": [1.0, 0.0, 0.0], "distance": 2.0, "observations": 3,
+                "normal_sum": [1.0, 0.0, 0.0], "distance_sum": 2.0, "distance_square_sum": 4.0,
+                "weight": weight, "point_sum": [2.0, 0.5, 1.0]}])
+        };
+        old["walls"] = wall(1.0);
+        std::fs::write(&json, old.to_string()).unwrap();
+        assert_eq!(read_map(dir.path()).unwrap().walls.len(), 1);
+        old["walls"] = wall(0.0);
+        std::fs::write(&json, old.to_string()).unwrap();
+        let weightless = read_map(dir.path()).unwrap_err().to_string();
+        assert!(weightless.contains("wall 0") && weightless.contains("no weight"), "{weightless}");
         write_map(dir.path(), &map).unwrap();
         let ply = dir.path().join("map.ply");
         let bytes = std::fs::read(&ply).unwrap();

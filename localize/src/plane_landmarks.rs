@@ -90,10 +90,12 @@ pub struct PlaneLandmark {
 }
 
 impl PlaneLandmark {
-    /// Whether every number of it is finite (a map file may say otherwise).
-    pub fn is_finite(&self) -> bool {
+    /// Whether every number of it is finite and its weight positive (a map
+    /// file may say otherwise).
+    pub fn is_valid(&self) -> bool {
         let finite = |v: &Vec3| v.iter().all(|x| x.is_finite());
-        finite(&self.normal)
+        self.weight > 0.0
+            && finite(&self.normal)
             && finite(&self.normal_sum)
             && self.point_sum.as_ref().is_none_or(finite)
             && [self.distance, self.distance_sum, self.distance_square_sum, self.weight].iter().all(|x| x.is_finite())
