@@ -27,7 +27,7 @@ use crate::config::LocalizeConfig;
 use crate::corner_source::CornerSource;
 use crate::error::{LocalizeError, Result};
 use crate::eval::{Alignment, ErrorSummary, compare};
-use crate::run::{RunMetrics, metrics, run_sequence, write_outputs};
+use crate::run::{RunMetrics, metrics_against, run_sequence, truth_in_run_frame, write_outputs};
 use crate::sequence::RecordedSequence;
 
 /// The LIDAR odometry systems `scripts/lidar_peers.py` runs.
@@ -334,12 +334,13 @@ fn localize_into(
     config: &LocalizeConfig,
 ) -> Result<RunMetrics> {
     let result = run_sequence(sequence, source, config, false)?;
-    let measured = metrics(sequence, &result)?.ok_or_else(|| LocalizeError::Sequence {
+    let no_overlap = || LocalizeError::Sequence {
         path: dir.to_path_buf(),
         message: "the ground truth does not overlap the run".into(),
-    })?;
-    let truth = crate::run::truth_in_run_frame(sequence, &result);
-    write_outputs(&dir.join(name), config, &result, truth.as_ref(), Some(&measured))?;
+    };
+    let truth = truth_in_run_frame(sequence, &result).ok_or_else(no_overlap)?;
+    let measured = metrics_against(sequence, &result, &truth)?.ok_or_else(no_overlap)?;
+    write_outputs(&dir.join(name), config, &result, Some(&truth), Some(&measured))?;
     Ok(measured)
 }
 

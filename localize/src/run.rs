@@ -263,9 +263,22 @@ pub struct RunMetrics {
     pub mean_total_ms: f64,
 }
 
+/// The run's errors against the sequence's ground truth (`None` without
+/// one, or when it does not overlap the run).
 pub fn metrics(sequence: &dyn SensorSequence, result: &RunResult) -> Result<Option<RunMetrics>> {
-    let Some(truth) = truth_in_run_frame(sequence, result) else { return Ok(None) };
-    let truth = &truth;
+    match truth_in_run_frame(sequence, result) {
+        Some(truth) => metrics_against(sequence, result, &truth),
+        None => Ok(None),
+    }
+}
+
+/// As `metrics`, with the ground truth already in the run's world
+/// (`truth_in_run_frame`), for callers that also draw it.
+pub fn metrics_against(
+    sequence: &dyn SensorSequence,
+    result: &RunResult,
+    truth: &Trajectory,
+) -> Result<Option<RunMetrics>> {
     // Levels are looked up where the ground truth's frame (world.json's) puts the robot.
     let in_world_json = sequence.ground_truth().unwrap_or(truth);
     let levels = match sequence.world_description() {

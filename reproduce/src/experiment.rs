@@ -9,7 +9,7 @@ use std::time::Instant;
 use infer::config::Backbone;
 use infer::metrics::EvalMetrics;
 use localize::corner_source::CornerSource;
-use localize::run::{RunMetrics, TrajectoryMetrics, metrics, run_sequence, write_outputs};
+use localize::run::{RunMetrics, TrajectoryMetrics, metrics_against, run_sequence, truth_in_run_frame, write_outputs};
 use localize::sequence::RecordedSequence;
 use serde::{Deserialize, Serialize};
 use train::compare::{RunRecord, csv_table, markdown_table, read_run, write_loss_plots};
@@ -366,8 +366,11 @@ fn localize_stage(
         let result = run_sequence(&sequence, &mut source, &plan.localize, show_progress)?;
         // Without ground truth (a recorded sequence may have none) there are
         // trajectories but no errors.
-        let m: Option<RunMetrics> = metrics(&sequence, &result)?;
-        let truth = localize::run::truth_in_run_frame(&sequence, &result);
+        let truth = truth_in_run_frame(&sequence, &result);
+        let m: Option<RunMetrics> = match &truth {
+            Some(truth) => metrics_against(&sequence, &result, truth)?,
+            None => None,
+        };
         write_outputs(&dir, &plan.localize, &result, truth.as_ref(), m.as_ref())?;
         Ok(LocalizeOutputs {
             backbone: trained.backbone,

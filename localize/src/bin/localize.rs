@@ -12,7 +12,7 @@ use localize::corner_source::CornerSource;
 use localize::eval::{Alignment, ErrorSummary, compare};
 use localize::levels::LevelMap;
 use localize::pipeline::FrameStatus;
-use localize::run::{MapStart, metrics, run_sequence_in_map, truth_in_run_frame, write_outputs};
+use localize::run::{MapStart, metrics_against, run_sequence_in_map, truth_in_run_frame, write_outputs};
 use localize::sensor_faults::{SensorFaults, WithChanges};
 use localize::sequence::{RecordedSequence, SensorSequence};
 
@@ -496,8 +496,11 @@ fn run(args: &RunArgs) -> Result<()> {
             p.candidates
         );
     }
-    let metrics = metrics(&*sequence, &result)?;
     let truth = truth_in_run_frame(&*sequence, &result);
+    let metrics = match &truth {
+        Some(truth) => metrics_against(&*sequence, &result, truth)?,
+        None => None,
+    };
     write_outputs(&args.out, &config, &result, truth.as_ref(), metrics.as_ref())?;
     println!("wrote {}", args.out.join("trajectory.txt").display());
     if sequence.ground_truth().is_some() && result.truth_origin.is_none() {
