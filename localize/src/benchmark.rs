@@ -339,7 +339,7 @@ fn localize_into(
         message: "the ground truth does not overlap the run".into(),
     };
     let truth = truth_in_run_frame(sequence, &result).ok_or_else(no_overlap)?;
-    let measured = metrics_against(sequence, &result, &truth)?.ok_or_else(no_overlap)?;
+    let measured = metrics_against(sequence, &result, Some(&truth))?.ok_or_else(no_overlap)?;
     write_outputs(&dir.join(name), config, &result, Some(&truth), Some(&measured))?;
     Ok(measured)
 }

@@ -261,6 +261,7 @@ impl PlaneMap {
                 continue;
             }
             let (mut n, mut d) = plane.in_world(world_from_robot);
+            let centroid = (world_from_robot * nalgebra::Point3::from(plane.point)).coords;
             let range = plane.point.norm();
             let w = plane.inliers as f64 / (1.0 + (range / self.config.range_scale_m).powi(2));
             match a {
@@ -281,7 +282,7 @@ impl PlaneMap {
                     l.normal = l.normal_sum.normalize();
                     l.distance = l.distance_sum / l.weight;
                     if let Some(sum) = &mut l.point_sum {
-                        *sum += w * (world_from_robot * nalgebra::Point3::from(plane.point)).coords;
+                        *sum += w * centroid;
                     }
                 }
                 None => self.landmarks.push(PlaneLandmark {
@@ -292,7 +293,7 @@ impl PlaneMap {
                     distance_sum: w * d,
                     distance_square_sum: w * d * d,
                     weight: w,
-                    point_sum: Some(w * (world_from_robot * nalgebra::Point3::from(plane.point)).coords),
+                    point_sum: Some(w * centroid),
                 }),
             }
         }

@@ -266,10 +266,7 @@ pub struct RunMetrics {
 /// The run's errors against the sequence's ground truth (`None` without
 /// one, or when it does not overlap the run).
 pub fn metrics(sequence: &dyn SensorSequence, result: &RunResult) -> Result<Option<RunMetrics>> {
-    match truth_in_run_frame(sequence, result) {
-        Some(truth) => metrics_against(sequence, result, &truth),
-        None => Ok(None),
-    }
+    metrics_against(sequence, result, truth_in_run_frame(sequence, result).as_ref())
 }
 
 /// As `metrics`, with the ground truth already in the run's world
@@ -277,8 +274,9 @@ pub fn metrics(sequence: &dyn SensorSequence, result: &RunResult) -> Result<Opti
 pub fn metrics_against(
     sequence: &dyn SensorSequence,
     result: &RunResult,
-    truth: &Trajectory,
+    truth: Option<&Trajectory>,
 ) -> Result<Option<RunMetrics>> {
+    let Some(truth) = truth else { return Ok(None) };
     // Levels are looked up where the ground truth's frame (world.json's) puts the robot.
     let in_world_json = sequence.ground_truth().unwrap_or(truth);
     let levels = match sequence.world_description() {

@@ -367,10 +367,7 @@ fn localize_stage(
         // Without ground truth (a recorded sequence may have none) there are
         // trajectories but no errors.
         let truth = truth_in_run_frame(&sequence, &result);
-        let m: Option<RunMetrics> = match &truth {
-            Some(truth) => metrics_against(&sequence, &result, truth)?,
-            None => None,
-        };
+        let m: Option<RunMetrics> = metrics_against(&sequence, &result, truth.as_ref())?;
         write_outputs(&dir, &plan.localize, &result, truth.as_ref(), m.as_ref())?;
         Ok(LocalizeOutputs {
             backbone: trained.backbone,

@@ -497,10 +497,7 @@ fn run(args: &RunArgs) -> Result<()> {
         );
     }
     let truth = truth_in_run_frame(&*sequence, &result);
-    let metrics = match &truth {
-        Some(truth) => metrics_against(&*sequence, &result, truth)?,
-        None => None,
-    };
+    let metrics = metrics_against(&*sequence, &result, truth.as_ref())?;
     write_outputs(&args.out, &config, &result, truth.as_ref(), metrics.as_ref())?;
     println!("wrote {}", args.out.join("trajectory.txt").display());
     if sequence.ground_truth().is_some() && result.truth_origin.is_none() {
