@@ -9,6 +9,7 @@ use crate::corners::CornerConfig;
 use crate::ekf::EkfConfig;
 use crate::fusion::FusionConfig;
 use crate::landmarks::LandmarkConfig;
+use crate::level_floor::LevelFloorConfig;
 use crate::normals::NormalConfig;
 use crate::plane_landmarks::PlaneLandmarkConfig;
 use crate::planes::PlaneConfig;
@@ -34,6 +35,8 @@ pub struct LocalizeConfig {
     pub sync: SyncConfig,
     /// Placing a new sequence's first scan in a saved map (`localize run --map`).
     pub relocalize: RelocalizeConfig,
+    /// Level floors as a roll and pitch reading.
+    pub level_floor: LevelFloorConfig,
 }
 
 /// Largest count a setting may ask for (points, votes, observations).
@@ -41,11 +44,12 @@ const MAX_COUNT: usize = 10_000_000;
 
 impl LocalizeConfig {
     /// The paper's estimator: corners and walls with odometry/IMU, the
-    /// detector on every image, without the scan-to-map registration this
-    /// project adds.
+    /// detector on every image, without the scan-to-map registration and
+    /// the level floors this project adds.
     pub fn paper_estimator() -> Self {
         let mut config = Self::default();
         config.scan_match.enabled = false;
+        config.level_floor.enabled = false;
         config.sync.detector_rate_hz = 0.0;
         config
     }
@@ -125,7 +129,8 @@ impl LocalizeConfig {
         }
         self.scan_match.validate().map_err(|e| e.within("scan_match"))?;
         self.sync.validate().map_err(|e| e.within("sync"))?;
-        self.relocalize.validate().map_err(|e| e.within("relocalize"))
+        self.relocalize.validate().map_err(|e| e.within("relocalize"))?;
+        self.level_floor.validate().map_err(|e| e.within("level_floor"))
     }
 }
 
@@ -152,5 +157,8 @@ mod tests {
         assert_eq!(with(&|c| c.sync.image_tolerance_s = -1.0).field, "sync.image_tolerance_s");
         assert_eq!(with(&|c| c.sync.detector_rate_hz = f64::NAN).field, "sync.detector_rate_hz");
         assert_eq!(with(&|c| c.scan_match.map_voxel_m = 0.0).field, "scan_match.map_voxel_m");
+        assert_eq!(with(&|c| c.level_floor.max_split_sigmas = f64::NAN).field, "level_floor.max_split_sigmas");
+        // A ramp cannot be less tilted than what counts as level.
+        assert_eq!(with(&|c| c.level_floor.ramp_max_tilt_deg = 1.0).field, "level_floor.ramp_max_tilt_deg");
     }
 }

@@ -190,6 +190,36 @@ impl Ekf {
         }
     }
 
+    /// Levels roll and pitch with a floor known to be level: its upward
+    /// normal in the robot frame, whose tilt has standard deviation
+    /// `sigma_rad`. Like gravity, it corrects only attitude and biases; the
+    /// two differ in the accelerometer's bias, which the floor does not see.
+    /// Returns whether the reading passed the `gate_chi2` gate.
+    pub fn update_level(&mut self, normal_in_robot: &Vec3, sigma_rad: f64, gate_chi2: f64) -> bool {
+        // h(x): the floor normal's horizontal part in the world, 0 when level.
+        let tilt = |x: &State| {
+            let n = rotation(x[3], x[4], x[5]) * normal_in_robot;
+            nalgebra::Vector2::new(n.x, n.y)
+        };
+        let mut h = SMatrix::<f64, 2, STATES>::zeros();
+        for k in 3..6 {
+            let e = 1e-6;
+            let (mut plus, mut minus) = (self.x, self.x);
+            plus[k] += e;
+            minus[k] -= e;
+            h.set_column(k, &((tilt(&plus) - tilt(&minus)) / (2.0 * e)));
+        }
+        let residual = -tilt(&self.x);
+        let r = nalgebra::Matrix2::identity() * sigma_rad.powi(2);
+        let s = h * self.p * h.transpose() + r;
+        let Some(s_inv) = s.try_inverse() else { return false };
+        if (residual.transpose() * s_inv * residual)[0] > gate_chi2 {
+            return false;
+        }
+        self.update_only(&h, &residual, &r, &[3, 4, 6, 7, 8, ACCEL_BIAS, ACCEL_BIAS + 1]);
+        true
+    }
+
     /// A standard Kalman update with residual `z - h(x)` already formed.
     pub fn update<const M: usize>(
         &mut self,
@@ -296,5 +326,44 @@ mod tests {
         assert!((steep - 2.0 * c.ramp_slip_per_s.powi(2)).abs() < 1e-9, "{steep}");
         let gentle = scale_variance_after(5.0, 2.0) - flat;
         assert!((gentle - 0.5 * c.ramp_slip_per_s.powi(2)).abs() < 1e-9, "{gentle}");
+    }
+
+    #[test]
+    fn a_level_floor_pulls_a_wrong_pitch_by_the_kalman_gain_and_leaves_the_position() {
+        // Truly level, the filter 5 mrad nose down with 3 mrad of doubt; the floor reads 1 mrad.
+        let mut ekf = Ekf::new(EkfConfig::default(), &Pose3::identity(), 0.0);
+        ekf.x[0] = 2.0;
+        ekf.x[4] = 0.005;
+        ekf.p[(4, 4)] = 0.003f64.powi(2);
+        ekf.p[(0, 4)] = 1e-6;
+        ekf.p[(4, 0)] = 1e-6;
+        assert!(ekf.update_level(&Vec3::z(), 0.001, 13.8));
+        // Scalar Kalman: 5 mrad x 1 / (1 + 9) is left (to the small-angle approximation).
+        assert!((ekf.x[4] - 0.0005).abs() < 1e-7, "{}", ekf.x[4]);
+        assert!(ekf.x[3].abs() < 1e-12 && ekf.x[5].abs() < 1e-12);
+        assert_eq!(ekf.x[0], 2.0, "a floor's tilt says nothing about where the robot is");
+        assert!((ekf.p[(4, 4)] - 0.9e-6).abs() < 1e-10, "{}", ekf.p[(4, 4)]);
+        // A floor 10 sigma off (a ramp's foot fitted as floor) is refused and changes nothing.
+        let before = ekf.x;
+        let tilted = Vec3::new(-0.02, 0.0, 1.0).normalize();
+        assert!(!ekf.update_level(&tilted, 0.001, 13.8));
+        assert_eq!(ekf.x, before);
+    }
+
+    #[test]
+    fn floor_and_gravity_together_separate_the_pitch_from_the_accelerometer_bias() {
+        // The accelerometer reads 0.03 m/s^2 too much along x: gravity alone
+        // would take it as 3 mrad of pitch. A level floor pins the pitch, so
+        // the bias must take the reading.
+        let mut ekf = Ekf::new(EkfConfig::default(), &Pose3::identity(), 0.0);
+        ekf.p[(4, 4)] = 0.005f64.powi(2);
+        let accel = Vec3::new(0.03, 0.0, GRAVITY);
+        for _ in 0..200 {
+            ekf.predict(&Vec3::zeros(), 0.0, 0.005);
+            ekf.update_gravity(&accel);
+            ekf.update_level(&Vec3::z(), 0.0005, 13.8);
+        }
+        assert!(ekf.x[4].abs() < 2e-4, "pitch {}", ekf.x[4]);
+        assert!((ekf.x[ACCEL_BIAS] - 0.03).abs() < 0.003, "bias {}", ekf.x[ACCEL_BIAS]);
     }
 }

@@ -17,6 +17,7 @@ pub mod eval;
 pub mod fusion;
 pub mod geometry;
 pub mod landmarks;
+pub mod level_floor;
 pub mod levels;
 pub mod map_output;
 pub mod motion;

@@ -15,6 +15,7 @@ use crate::error::Result;
 use crate::fusion::CornerFusion;
 use crate::geometry::{Geometry, GeometryStages};
 use crate::landmarks::LandmarkMap;
+use crate::level_floor::{LevelFloorConfig, read_floor};
 use crate::plane_landmarks::{PlaneMap, RobotPlane};
 use crate::point_map::PointMap;
 use crate::pose::{Correspondence, PlaneCorrespondence, PlaneSigmas, PoseSolver};
@@ -83,6 +84,8 @@ pub struct FrameReport {
     pub plane_correspondences: usize,
     /// Scan points registered against the point map (0: no registration).
     pub scan_correspondences: usize,
+    /// A level floor levelled roll and pitch.
+    pub level_floor: bool,
     pub landmarks: usize,
     pub detect_ms: f64,
     pub normals_ms: f64,
@@ -109,6 +112,7 @@ impl FrameReport {
             correspondences: 0,
             plane_correspondences: 0,
             scan_correspondences: 0,
+            level_floor: false,
             landmarks,
             detect_ms,
             normals_ms: 0.0,
@@ -174,6 +178,7 @@ pub struct Localizer {
     /// The given map's keyframes, where its first frame is searched for.
     keyframes: Vec<Pose3>,
     relocalize: RelocalizeConfig,
+    level_floor: LevelFloorConfig,
 }
 
 /// How far from a given start's heading the search turns.
@@ -198,6 +203,7 @@ impl Localizer {
             given_map: false,
             keyframes: Vec::new(),
             relocalize: config.relocalize.clone(),
+            level_floor: config.level_floor.clone(),
         })
     }
 
@@ -283,6 +289,10 @@ impl Localizer {
             Err(why) => return report.finish(ekf, FrameStatus::BadCloud(why), started),
         };
         report.record_geometry(&geometry);
+        // A level floor in sight levels the attitude before anything is paired.
+        if let Some(floor) = read_floor(&self.level_floor, &geometry, &self.calibration.robot_from_lidar, &ekf.pose()) {
+            report.level_floor = ekf.update_level(&floor.normal_in_robot, floor.sigma_rad, self.level_floor.gate_chi2);
+        }
         // Walls: the frame's planes paired with the plane landmarks at the predicted pose.
         let predicted = ekf.pose();
         let planes = self.robot_planes(&geometry);

@@ -324,7 +324,7 @@ pub fn longest_scan_gap(frames: &[FrameReport]) -> Option<(f64, f64)> {
 }
 
 pub const FRAME_COLUMNS: &str = "timestamp,scan_gap_s,x,y,z,status,detections,planes,corners,matches,correspondences,plane_correspondences,scan_correspondences,\
-landmarks,detect_ms,normals_ms,planes_ms,corners_ms,fusion_ms,scan_ms,pose_ms,total_ms";
+level_floor,landmarks,detect_ms,normals_ms,planes_ms,corners_ms,fusion_ms,scan_ms,pose_ms,total_ms";
 
 pub fn frames_csv(frames: &[FrameReport]) -> String {
     let mut out = String::from(FRAME_COLUMNS);
@@ -333,7 +333,7 @@ pub fn frames_csv(frames: &[FrameReport]) -> String {
         let t = f.pose.translation.vector;
         let _ = writeln!(
             out,
-            "{:.6},{:.3},{:.4},{:.4},{:.4},{},{},{},{},{},{},{},{},{},{:.1},{:.1},{:.1},{:.1},{:.1},{:.1},{:.1},{:.1}",
+            "{:.6},{:.3},{:.4},{:.4},{:.4},{},{},{},{},{},{},{},{},{},{},{:.1},{:.1},{:.1},{:.1},{:.1},{:.1},{:.1},{:.1}",
             f.stamp,
             f.scan_gap_s,
             t.x,
@@ -347,6 +347,7 @@ pub fn frames_csv(frames: &[FrameReport]) -> String {
             f.correspondences,
             f.plane_correspondences,
             f.scan_correspondences,
+            u8::from(f.level_floor),
             f.landmarks,
             f.detect_ms,
             f.normals_ms,
