@@ -4,13 +4,12 @@
 
 use datasets::InvalidSetting;
 use datasets::math::{Mat3, Vec3};
-use kiddo::SquaredEuclidean;
 use nalgebra::Point3;
 use serde::{Deserialize, Serialize};
 
 use crate::error::Result;
-use crate::normals::PointTree;
 use crate::planes::{Plane, PlaneSet};
+use crate::scan_grid::ScanGrid;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -99,19 +98,20 @@ impl CornerExtractor {
         Ok(Self { config })
     }
 
-    pub fn extract(&self, set: &PlaneSet, points: &[Point3<f32>], tree: &PointTree, sensor: &Vec3) -> CornerSet {
+    /// Corners and edges of the planes of `points`, which `grid` indexes.
+    pub fn extract(&self, set: &PlaneSet, points: &[Point3<f32>], grid: &ScanGrid) -> CornerSet {
         let c = &self.config;
         let planes = &set.planes;
-        // Inliers of each plane near a position (from the shared kd-tree).
+        let sensor = grid.sensor();
+        // Inliers of each plane near a position (from the shared grid).
         let support = |x: &Vec3| -> Vec<usize> {
             let radius = c.support_radius_m.max(c.support_range_fraction * (x - sensor).norm());
-            let r2 = (radius * radius) as f32;
             let mut count = vec![0usize; planes.len()];
-            for n in tree.within_unsorted::<SquaredEuclidean>(&[x.x as f32, x.y as f32, x.z as f32], r2) {
-                if let Some(label) = set.labels[n.item as usize] {
+            grid.within(x, radius, |i| {
+                if let Some(label) = set.labels[i] {
                     count[label as usize] += 1;
                 }
-            }
+            });
             count
         };
         let mut corners: Vec<Corner3> = Vec::new();

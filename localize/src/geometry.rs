@@ -8,8 +8,9 @@ use nalgebra::Point3;
 use crate::config::LocalizeConfig;
 use crate::corners::{CornerExtractor, CornerSet};
 use crate::error::{LocalizeError, Result};
-use crate::normals::{NormalEstimator, PointNormal, build_tree};
+use crate::normals::{NormalEstimator, PointNormal};
 use crate::planes::{PlaneExtractor, PlaneSet};
+use crate::scan_grid::ScanGrid;
 use crate::voxel::VoxelFilter;
 
 pub struct GeometryStages {
@@ -54,14 +55,14 @@ impl GeometryStages {
         // Down-sampling is counted with the normals it serves.
         let start = Instant::now();
         let points = self.voxel.downsample(points);
-        let tree = build_tree(&points);
-        let normals = self.normals.estimate(&points, &tree, sensor)?;
+        let grid = ScanGrid::new(&points, sensor);
+        let normals = self.normals.estimate(&points, &grid)?;
         let normals_ms = ms_since(start);
         let start = Instant::now();
         let planes = self.planes.extract(&points, &normals);
         let planes_ms = ms_since(start);
         let start = Instant::now();
-        let corners = self.corners.extract(&planes, &points, &tree, sensor);
+        let corners = self.corners.extract(&planes, &points, &grid);
         let corners_ms = ms_since(start);
         Ok(Geometry { points, normals, planes, corners, normals_ms, planes_ms, corners_ms })
     }

@@ -30,6 +30,7 @@ pub mod point_map;
 pub mod pose;
 pub mod relocalize;
 pub mod run;
+pub mod scan_grid;
 pub mod scan_match;
 pub mod sensor_faults;
 pub mod sensor_replay;

@@ -1,19 +1,15 @@
-//! Surface normals: PCA of each point's k nearest neighbours (kd-tree), the
-//! normal being the eigenvector of the smallest eigenvalue, oriented toward
-//! the sensor.
-
-use std::num::NonZero;
+//! Surface normals: PCA of each point's k nearest neighbours (found in the
+//! scan's direction grid), the normal being the eigenvector of the smallest
+//! eigenvalue, oriented toward the sensor.
 
 use datasets::InvalidSetting;
 use datasets::math::{Mat3, Vec3};
-use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::Point3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{LocalizeError, Result};
-
-pub type PointTree = ImmutableKdTree<f32, 3>;
+use crate::scan_grid::{NeighbourScratch, ScanGrid};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -48,12 +44,6 @@ pub struct NormalEstimator {
     config: NormalConfig,
 }
 
-/// The kd-tree of a cloud, built once per frame and shared by the stages.
-pub fn build_tree(points: &[Point3<f32>]) -> PointTree {
-    let coordinates: Vec<[f32; 3]> = points.iter().map(|p| [p.x, p.y, p.z]).collect();
-    ImmutableKdTree::new_from_slice(&coordinates)
-}
-
 impl NormalEstimator {
     pub fn new(config: NormalConfig) -> Result<Self> {
         if config.neighbours < 3 {
@@ -63,9 +53,9 @@ impl NormalEstimator {
         Ok(Self { config })
     }
 
-    /// One normal per point, each pointing toward `sensor` (the origin of the
-    /// cloud's frame for a scan in its sensor frame).
-    pub fn estimate(&self, points: &[Point3<f32>], tree: &PointTree, sensor: &Vec3) -> Result<Vec<PointNormal>> {
+    /// One normal per point of the cloud `grid` indexes (`points`, in the
+    /// same order), each pointing toward the grid's sensor.
+    pub fn estimate(&self, points: &[Point3<f32>], grid: &ScanGrid) -> Result<Vec<PointNormal>> {
         let k = self.config.neighbours;
         if points.len() < k {
             return Err(LocalizeError::Cloud(format!(
@@ -73,25 +63,28 @@ impl NormalEstimator {
                 points.len()
             )));
         }
-        let k = NonZero::new(k).expect("checked above");
-        Ok(points
-            .par_chunks(HINT_CHUNK)
+        let sensor = grid.sensor();
+        Ok((0..points.len())
+            .into_par_iter()
+            .chunks(CHUNK)
             .flat_map_iter(|chunk| {
-                let mut radius2 = f32::INFINITY;
-                chunk.iter().map(move |p| {
-                    let neighbours = nearest_with_hint(tree, p, k, &mut radius2);
-                    let at = |i: u64| points[i as usize].cast::<f64>().coords;
-                    let mean = neighbours.iter().fold(Vec3::zeros(), |a, n| a + at(n.item)) / neighbours.len() as f64;
+                let mut hint = f64::INFINITY;
+                let mut scratch = NeighbourScratch::default();
+                chunk.into_iter().map(move |i| {
+                    let neighbours = grid.nearest(i, k, &mut hint, &mut scratch);
+                    let at = |n: u32| points[n as usize].cast::<f64>().coords;
+                    let mean = neighbours.iter().fold(Vec3::zeros(), |a, &n| a + at(n)) / neighbours.len() as f64;
                     let mut covariance = Mat3::zeros();
-                    for n in &neighbours {
-                        let d = at(n.item) - mean;
+                    for &n in neighbours {
+                        let d = at(n) - mean;
                         covariance += d * d.transpose();
                     }
+                    let p = points[i].cast::<f64>().coords;
                     let (mut normal, curvature) = smallest_eigenvector(&covariance);
-                    if normal.dot(&(sensor - p.cast::<f64>().coords)) < 0.0 {
+                    if normal.dot(&(sensor - p)) < 0.0 {
                         normal = -normal;
                     }
-                    let offset = normal.dot(&(p.cast::<f64>().coords - mean));
+                    let offset = normal.dot(&(p - mean));
                     PointNormal { normal, curvature, offset }
                 })
             })
@@ -99,39 +92,45 @@ impl NormalEstimator {
     }
 }
 
-/// Points searched in order by one task, each search bounded by the
-/// previous one's neighbourhood.
-const HINT_CHUNK: usize = 256;
-
-/// The `k` nearest neighbours of `p` (unordered). Scans list points in
-/// sweep order, so a point's neighbourhood is about as large as the
-/// previous point's: a search within 1.2 x that radius (`radius2`, squared,
-/// updated here) prunes most of the tree and returns the same k points
-/// whenever it finds k; otherwise it is repeated without a bound.
-fn nearest_with_hint(
-    tree: &PointTree,
-    p: &Point3<f32>,
-    k: NonZero<usize>,
-    radius2: &mut f32,
-) -> Vec<kiddo::NearestNeighbour<f32, u64>> {
-    let query = [p.x, p.y, p.z];
-    let mut found = tree.nearest_n_within::<SquaredEuclidean>(&query, *radius2, k, false);
-    if found.len() < k.get() && radius2.is_finite() {
-        found = tree.nearest_n_within::<SquaredEuclidean>(&query, f32::INFINITY, k, false);
-    }
-    let farthest = found.iter().fold(0.0f32, |m, n| m.max(n.distance));
-    *radius2 = if farthest > 0.0 { farthest * 1.44 } else { f32::INFINITY };
-    found
-}
+/// Points searched in order by one task, each search starting from the
+/// previous one's neighbourhood size.
+const CHUNK: usize = 256;
 
 /// The unit eigenvector of the smallest eigenvalue of a symmetric 3x3 matrix
 /// and the surface variation; a zero matrix gives +z and curvature 1/3.
+///
+/// In closed form (the eigenvalues from the characteristic cubic, the
+/// eigenvector as the cross product of two rows of `A - lambda I`), several
+/// times faster than an iterative solver; where the smallest eigenvalue is
+/// not simple (a line, an isotropic blob: no normal to speak of) the
+/// iterative solver decides, as it always did.
 pub fn smallest_eigenvector(covariance: &Mat3) -> (Vec3, f64) {
-    let eigen = covariance.symmetric_eigen();
-    let trace: f64 = eigen.eigenvalues.iter().sum();
+    let a = covariance;
+    let trace = a.trace();
     if trace.is_nan() || trace <= 0.0 {
         return (Vec3::z(), 1.0 / 3.0);
     }
+    let q = trace / 3.0;
+    let b = a - Mat3::identity() * q;
+    let off = a[(0, 1)].powi(2) + a[(0, 2)].powi(2) + a[(1, 2)].powi(2);
+    let p = ((b[(0, 0)].powi(2) + b[(1, 1)].powi(2) + b[(2, 2)].powi(2) + 2.0 * off) / 6.0).sqrt();
+    if p > 1e-9 * q {
+        let r = ((b / p).determinant() / 2.0).clamp(-1.0, 1.0);
+        let phi = r.acos() / 3.0;
+        let largest = q + 2.0 * p * phi.cos();
+        let smallest = q + 2.0 * p * (phi + 2.0 * std::f64::consts::FRAC_PI_3).cos();
+        let m = a - Mat3::identity() * smallest;
+        let rows = [m.row(0).transpose(), m.row(1).transpose(), m.row(2).transpose()];
+        let crosses = [rows[0].cross(&rows[1]), rows[0].cross(&rows[2]), rows[1].cross(&rows[2])];
+        let best = crosses.iter().max_by(|x, y| x.norm_squared().total_cmp(&y.norm_squared())).expect("three");
+        // |best| is about (lambda_1 - lambda_3)(lambda_2 - lambda_3): small
+        // against the spread when the smallest eigenvalue is (nearly) double.
+        let spread = largest - smallest;
+        if best.norm() > 1e-6 * spread * spread {
+            return (best.normalize(), smallest.max(0.0) / trace);
+        }
+    }
+    let eigen = covariance.symmetric_eigen();
     let (index, lambda) = eigen.eigenvalues.iter().enumerate().min_by(|a, b| a.1.total_cmp(b.1)).expect("three values");
     (eigen.eigenvectors.column(index).normalize(), lambda.max(0.0) / trace)
 }
@@ -142,45 +141,60 @@ mod tests {
     use rand::rngs::ChaCha8Rng;
     use rand::{RngExt, SeedableRng};
 
-    /// The k nearest by brute force, as sorted indices.
-    fn brute_force(points: &[Point3<f32>], p: &Point3<f32>, k: usize) -> Vec<usize> {
-        let mut order: Vec<usize> = (0..points.len()).collect();
-        order.sort_by(|&a, &b| (points[a] - p).norm_squared().total_cmp(&(points[b] - p).norm_squared()));
-        order.truncate(k);
-        order.sort_unstable();
-        order
+    /// The iterative solver's answer, as before the closed form.
+    fn iterative(covariance: &Mat3) -> (Vec3, f64) {
+        let eigen = covariance.symmetric_eigen();
+        let trace: f64 = eigen.eigenvalues.iter().sum();
+        let (index, lambda) = eigen.eigenvalues.iter().enumerate().min_by(|a, b| a.1.total_cmp(b.1)).unwrap();
+        (eigen.eigenvectors.column(index).normalize(), lambda.max(0.0) / trace)
     }
 
     #[test]
-    fn the_bounded_search_finds_exactly_the_k_nearest_in_any_order() {
-        // Rings of a scan (sweep order, where the bound helps), with one
-        // far-away cluster so that the previous radius is sometimes too small.
-        let mut rng = ChaCha8Rng::seed_from_u64(5);
-        let mut points: Vec<Point3<f32>> = Vec::new();
-        for ring in 0..6 {
-            for step in 0..300 {
-                let a = step as f32 * std::f32::consts::TAU / 300.0;
-                let r = 3.0 + rng.random_range(-0.02..0.02);
-                points.push(Point3::new(r * a.cos(), r * a.sin(), -1.0 + 0.15 * ring as f32));
-            }
-            for _ in 0..20 {
-                points.push(Point3::new(20.0 + rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), 0.0));
+    fn the_closed_form_agrees_with_the_iterative_solver() {
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        // Patches of 40 points: planes with noise from 1e-6 to 0.3 of their
+        // extent (the normals' working range), at random orientations, and
+        // lines and blobs (no simple smallest eigenvalue).
+        for case in 0..3000 {
+            let rotation = nalgebra::Rotation3::from_scaled_axis(Vec3::new(
+                rng.random_range(-3.0..3.0),
+                rng.random_range(-3.0..3.0),
+                rng.random_range(-3.0..3.0),
+            ));
+            let noise = 10f64.powf(rng.random_range(-6.0..-0.5));
+            let (sx, sy) = match case % 3 {
+                0 => (1.0, rng.random_range(0.2..1.0)),
+                1 => (1.0, noise),
+                _ => (noise, noise),
+            };
+            let offset = Vec3::new(rng.random_range(-20.0..20.0), rng.random_range(-20.0..20.0), 0.0);
+            let points: Vec<Vec3> = (0..40)
+                .map(|_| {
+                    let local = Vec3::new(
+                        sx * rng.random_range(-1.0..1.0),
+                        sy * rng.random_range(-1.0..1.0),
+                        noise * rng.random_range(-1.0..1.0),
+                    );
+                    rotation * local + offset
+                })
+                .collect();
+            let mean = points.iter().sum::<Vec3>() / points.len() as f64;
+            let covariance = points.iter().fold(Mat3::zeros(), |c, p| c + (p - mean) * (p - mean).transpose());
+            let (closed, curvature) = smallest_eigenvector(&covariance);
+            let (reference, reference_curvature) = iterative(&covariance);
+            assert!((closed.norm() - 1.0).abs() < 1e-12);
+            assert!(
+                (curvature - reference_curvature).abs() < 1e-10,
+                "case {case}: curvature {curvature} against {reference_curvature}"
+            );
+            if case % 3 == 0 {
+                // A plane's normal, to within a microradian.
+                let angle = closed.dot(&reference).abs().min(1.0).acos();
+                assert!(angle < 1e-6, "case {case}: normals {angle} rad apart (noise {noise})");
             }
         }
-        let mut shuffled = points.clone();
-        for i in (1..shuffled.len()).rev() {
-            shuffled.swap(i, rng.random_range(0..=i));
-        }
-        let k = NonZero::new(25).unwrap();
-        for cloud in [&points, &shuffled] {
-            let tree = build_tree(cloud);
-            let mut radius2 = f32::INFINITY;
-            for p in cloud.iter() {
-                let mut found: Vec<usize> =
-                    nearest_with_hint(&tree, p, k, &mut radius2).iter().map(|n| n.item as usize).collect();
-                found.sort_unstable();
-                assert_eq!(found, brute_force(cloud, p, k.get()), "at {p:?}");
-            }
-        }
+        assert_eq!(smallest_eigenvector(&Mat3::zeros()), (Vec3::z(), 1.0 / 3.0));
+        let isotropic = smallest_eigenvector(&Mat3::identity());
+        assert!((isotropic.1 - 1.0 / 3.0).abs() < 1e-12 && (isotropic.0.norm() - 1.0).abs() < 1e-12);
     }
 }

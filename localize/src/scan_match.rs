@@ -388,9 +388,9 @@ mod tests {
                 (on_wall * ((range + noise) / range)).cast::<f32>().into()
             })
             .collect();
-        let tree = crate::normals::build_tree(&points);
+        let grid = crate::scan_grid::ScanGrid::new(&points, &Vec3::zeros());
         let estimator = crate::normals::NormalEstimator::new(crate::normals::NormalConfig::default()).unwrap();
-        let normals = estimator.estimate(&points, &tree, &Vec3::zeros()).unwrap();
+        let normals = estimator.estimate(&points, &grid).unwrap();
         let config = ScanMatchConfig { max_curvature: 1.0, ..ScanMatchConfig::default() };
         let scan = ScanPoints::select(&config, &points, &normals, &Pose3::identity());
         let mean_offset = |kept: &[Vec3]| kept.iter().map(|p| p.y - wall_y).sum::<f64>() / kept.len() as f64;

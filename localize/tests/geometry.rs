@@ -110,9 +110,9 @@ fn normals_point_toward_the_sensor() {
     let mut rng = ChaCha8Rng::seed_from_u64(5);
     let points: Vec<Point3<f32>> = room(&mut rng, 1500, 0.0).into_iter().collect();
     let sensor = Vec3::new(4.0, 2.5, 1.5);
-    let tree = localize::normals::build_tree(&points);
+    let grid = localize::scan_grid::ScanGrid::new(&points, &sensor);
     let estimator = localize::normals::NormalEstimator::new(Default::default()).unwrap();
-    let normals = estimator.estimate(&points, &tree, &sensor).unwrap();
+    let normals = estimator.estimate(&points, &grid).unwrap();
     let mut facing = 0;
     for (p, n) in points.iter().zip(&normals) {
         if n.normal.dot(&(sensor - p.cast::<f64>().coords)) > 0.0 {
