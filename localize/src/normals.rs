@@ -57,6 +57,13 @@ impl NormalEstimator {
     /// same order), each pointing toward the grid's sensor.
     pub fn estimate(&self, points: &[Point3<f32>], grid: &ScanGrid) -> Result<Vec<PointNormal>> {
         let k = self.config.neighbours;
+        if grid.len() != points.len() {
+            return Err(LocalizeError::Cloud(format!(
+                "{} points but a neighbour grid of {}: the grid must index these points",
+                points.len(),
+                grid.len()
+            )));
+        }
         if points.len() < k {
             return Err(LocalizeError::Cloud(format!(
                 "{} points, fewer than the {k} neighbours a normal needs",
@@ -147,6 +154,15 @@ mod tests {
         let trace: f64 = eigen.eigenvalues.iter().sum();
         let (index, lambda) = eigen.eigenvalues.iter().enumerate().min_by(|a, b| a.1.total_cmp(b.1)).unwrap();
         (eigen.eigenvectors.column(index).normalize(), lambda.max(0.0) / trace)
+    }
+
+    #[test]
+    fn a_grid_of_other_points_is_an_error() {
+        let points: Vec<Point3<f32>> = (0..50).map(|i| Point3::new(1.0, i as f32 * 0.01, 0.0)).collect();
+        let grid = ScanGrid::new(&points[..45], &Vec3::zeros());
+        let estimator = NormalEstimator::new(NormalConfig::default()).unwrap();
+        let error = estimator.estimate(&points, &grid).unwrap_err().to_string();
+        assert!(error.contains("50 points but a neighbour grid of 45"), "{error}");
     }
 
     #[test]
