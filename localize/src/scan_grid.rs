@@ -120,7 +120,7 @@ impl ScanGrid {
             directions,
         };
         // A counting sort of the points by cell.
-        let cells: Vec<usize> = grid.directions.iter().map(|d| grid.cell_of(d)).collect();
+        let cells: Vec<usize> = grid.directions.par_iter().map(|d| grid.cell_of(d)).collect();
         let mut start = vec![0u32; rows * cols + 1];
         for &cell in &cells {
             start[cell + 1] += 1;
@@ -140,9 +140,9 @@ impl ScanGrid {
         grid.edge_cos = (0..=rows)
             .map(|r| (grid.elevation0 + r as f64 * grid.row_height).clamp(-FRAC_PI_2, FRAC_PI_2).cos())
             .collect();
-        grid.xs = original.iter().map(|&i| points[i as usize].x).collect();
-        grid.ys = original.iter().map(|&i| points[i as usize].y).collect();
-        grid.zs = original.iter().map(|&i| points[i as usize].z).collect();
+        grid.xs = original.par_iter().map(|&i| points[i as usize].x).collect();
+        grid.ys = original.par_iter().map(|&i| points[i as usize].y).collect();
+        grid.zs = original.par_iter().map(|&i| points[i as usize].z).collect();
         grid.original = original;
         grid.cell_start = start;
         grid
