@@ -137,6 +137,11 @@ pub fn smallest_eigenvector(covariance: &Mat3) -> (Vec3, f64) {
             return (best.normalize(), smallest.max(0.0) / trace);
         }
     }
+    iterative_smallest_eigenvector(covariance, trace)
+}
+
+/// `smallest_eigenvector` by nalgebra's iterative solver (`trace` > 0).
+fn iterative_smallest_eigenvector(covariance: &Mat3, trace: f64) -> (Vec3, f64) {
     let eigen = covariance.symmetric_eigen();
     let (index, lambda) = eigen.eigenvalues.iter().enumerate().min_by(|a, b| a.1.total_cmp(b.1)).expect("three values");
     (eigen.eigenvectors.column(index).normalize(), lambda.max(0.0) / trace)
@@ -147,14 +152,6 @@ mod tests {
     use super::*;
     use rand::rngs::ChaCha8Rng;
     use rand::{RngExt, SeedableRng};
-
-    /// The iterative solver's answer, as before the closed form.
-    fn iterative(covariance: &Mat3) -> (Vec3, f64) {
-        let eigen = covariance.symmetric_eigen();
-        let trace: f64 = eigen.eigenvalues.iter().sum();
-        let (index, lambda) = eigen.eigenvalues.iter().enumerate().min_by(|a, b| a.1.total_cmp(b.1)).unwrap();
-        (eigen.eigenvectors.column(index).normalize(), lambda.max(0.0) / trace)
-    }
 
     #[test]
     fn a_grid_of_other_points_is_an_error() {
@@ -197,7 +194,7 @@ mod tests {
             let mean = points.iter().sum::<Vec3>() / points.len() as f64;
             let covariance = points.iter().fold(Mat3::zeros(), |c, p| c + (p - mean) * (p - mean).transpose());
             let (closed, curvature) = smallest_eigenvector(&covariance);
-            let (reference, reference_curvature) = iterative(&covariance);
+            let (reference, reference_curvature) = iterative_smallest_eigenvector(&covariance, covariance.trace());
             assert!((closed.norm() - 1.0).abs() < 1e-12);
             assert!(
                 (curvature - reference_curvature).abs() < 1e-10,

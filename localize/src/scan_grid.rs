@@ -79,7 +79,7 @@ impl Direction {
 
 /// A block of cells: rows `row_lo..=row_hi` and columns `col_lo..=col_hi`
 /// (unwrapped: a column index is taken modulo the column count).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy)]
 struct Window {
     row_lo: usize,
     row_hi: usize,
