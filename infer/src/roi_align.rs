@@ -1,9 +1,9 @@
 //! RoIAlign (torchvision's `roi_align` with `aligned=True` and a fixed
 //! sampling ratio). On flex it runs the native kernel of `roi_align_native`;
-//! elsewhere it is built from `grid_sample_2d`, so that autodiff gives its
-//! gradient with respect to the feature map on any device (that composition
-//! equals torchvision's for boxes inside the map; at the border torchvision
-//! clamps samples onto the edge where `grid_sample` fades them to zero).
+//! elsewhere (a GPU) it is built from `grid_sample_2d`, so that autodiff gives
+//! its gradient with respect to the feature map on any device. Both follow
+//! torchvision at the border: a sample within one pixel outside the map is
+//! moved onto its edge, one farther out reads zero.
 
 use burn::nn::pool::AvgPool2dConfig;
 use burn::prelude::*;
@@ -38,9 +38,15 @@ pub fn roi_align_grid_sample(features: Tensor<4>, rois: &[BBox], output: usize, 
         for iy in 0..s {
             for ix in 0..s {
                 let (x, y) = (x1 + (ix as f32 + 0.5) * bw, y1 + (iy as f32 + 0.5) * bh);
-                // grid_sample's normalised coordinates with align_corners = false.
-                grid.push((x + 0.5) / w as f32 * 2.0 - 1.0);
-                grid.push((y + 0.5) / h as f32 * 2.0 - 1.0);
+                match (torchvision_sample(x, w), torchvision_sample(y, h)) {
+                    // grid_sample's normalised coordinates with align_corners = false.
+                    (Some(x), Some(y)) => {
+                        grid.push((x + 0.5) / w as f32 * 2.0 - 1.0);
+                        grid.push((y + 0.5) / h as f32 * 2.0 - 1.0);
+                    }
+                    // Far outside the map: zero padding gives zero.
+                    _ => grid.extend([-4.0, -4.0]),
+                }
             }
         }
     }
@@ -51,4 +57,10 @@ pub fn roi_align_grid_sample(features: Tensor<4>, rois: &[BBox], output: usize, 
     // [1, C, K*s, s] -> [K, C, s, s]
     let sampled = features.grid_sample_2d(grid, options).reshape([c, k, s, s]).swap_dims(0, 1);
     AvgPool2dConfig::new([sampling, sampling]).with_strides([sampling, sampling]).init().forward(sampled)
+}
+
+/// torchvision's treatment of a sample coordinate on an axis of `n` pixels:
+/// none beyond one pixel outside, clamped onto the edge pixel within it.
+fn torchvision_sample(v: f32, n: usize) -> Option<f32> {
+    (-1.0..=n as f32).contains(&v).then(|| v.clamp(0.0, n as f32 - 1.0))
 }

@@ -9,7 +9,7 @@ use infer::network::Network;
 
 #[test]
 fn nan_weights_are_refused_with_the_layer_named() {
-    let device = infer::backend::CpuBackend::default().device();
+    let device = infer::backend::ComputeBackend::default().device().unwrap();
     let mut config = DetectorConfig::new(Backbone::Alexnet, 0.125);
     config.hidden = 64;
     let meta = CheckpointMeta {

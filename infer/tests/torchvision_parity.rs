@@ -172,6 +172,16 @@ fn roi_align_matches_on(device: Device, op: RoiAlignFn) {
 /// with respect to the feature map, against torchvision's autograd.
 #[test]
 fn native_roi_align_matches_at_the_border_and_in_its_gradient() {
+    roi_align_matches_at_the_border(roi_align);
+}
+
+/// The composition too: a GPU's detections on boxes at the image edge are the CPU's.
+#[test]
+fn roi_align_composition_matches_at_the_border_and_in_its_gradient() {
+    roi_align_matches_at_the_border(roi_align_grid_sample);
+}
+
+fn roi_align_matches_at_the_border(op: RoiAlignFn) {
     let f = fixture();
     let r = &f["roi_align_border"];
     let shape: Vec<usize> = indices(&r["shape"]);
@@ -181,7 +191,7 @@ fn native_roi_align_matches_at_the_border_and_in_its_gradient() {
     let rois = boxes(&r["rois"]);
     let (output, sampling) =
         (r["output_size"].as_u64().unwrap() as usize, r["sampling_ratio"].as_u64().unwrap() as usize);
-    let pooled = roi_align(map.clone(), &rois, output, sampling);
+    let pooled = op(map.clone(), &rois, output, sampling);
     let weights = Tensor::<4>::from_data(TensorData::new(floats(&r["weights"]), pooled.dims()), &device);
     let grads = (pooled.clone() * weights).sum().backward();
     for (what, ours, want) in [

@@ -122,7 +122,8 @@ fn frames_without_images_fall_back_and_say_why() {
     let dir = tempfile::tempdir().unwrap();
     write_sequence(dir.path());
     let sequence = RecordedSequence::open(dir.path()).unwrap();
-    let mut source = CornerSource::detector(&checkpoint, infer::backend::CpuBackend::Flex.device(), 0.3).unwrap();
+    let mut source =
+        CornerSource::detector(&checkpoint, infer::backend::ComputeBackend::Flex.device().unwrap(), 0.3).unwrap();
     let result = run_sequence(&sequence, &mut source, &LocalizeConfig::default(), false).unwrap();
     assert_eq!(result.trajectory.len(), 3);
     for (frame, stamp) in result.frames.iter().zip(["0.000000", "1.000000", "2.000000"]) {
@@ -272,7 +273,8 @@ fn an_image_of_another_size_than_the_calibration_says_so_in_its_frame() {
     image::RgbImage::new(320, 240).save(dir.path().join("rgb/1.000000.png")).unwrap();
     let sequence = RecordedSequence::open(dir.path()).unwrap();
     let checkpoint = manifest_dir().join("../checkpoints/faster-rcnn");
-    let mut source = CornerSource::detector(&checkpoint, infer::backend::CpuBackend::Flex.device(), 0.3).unwrap();
+    let mut source =
+        CornerSource::detector(&checkpoint, infer::backend::ComputeBackend::Flex.device().unwrap(), 0.3).unwrap();
     let result = run_sequence(&sequence, &mut source, &LocalizeConfig::default(), false).unwrap();
     let FrameStatus::NoImage { why, .. } = &result.frames[1].status else { panic!("{:?}", result.frames[1].status) };
     assert!(

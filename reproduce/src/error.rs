@@ -25,6 +25,8 @@ pub enum ReproduceError {
     #[error(transparent)]
     Checkpoint(#[from] infer::checkpoint::CheckpointError),
     #[error(transparent)]
+    Backend(#[from] infer::backend::BackendError),
+    #[error(transparent)]
     Localize(#[from] localize::error::LocalizeError),
 }
 

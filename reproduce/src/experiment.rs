@@ -362,7 +362,7 @@ fn localize_stage(
     run_stage(&dir, &inputs, || {
         let started = Instant::now();
         let sequence = RecordedSequence::open(&data_dir.join("sequence"))?;
-        let mut source = CornerSource::detector(&checkpoint, plan.backend.device(), plan.localize.fusion.min_score)?;
+        let mut source = CornerSource::detector(&checkpoint, plan.backend.device()?, plan.localize.fusion.min_score)?;
         let result = run_sequence(&sequence, &mut source, &plan.localize, show_progress)?;
         // Without ground truth (a recorded sequence may have none) there are
         // trajectories but no errors.

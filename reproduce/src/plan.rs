@@ -7,7 +7,7 @@ use std::path::PathBuf;
 
 use datasets::corpus::CorpusConfig;
 use datasets::generate::DatagenConfig;
-use infer::backend::CpuBackend;
+use infer::backend::ComputeBackend;
 use infer::config::{Backbone, DEFAULT_WIDTH};
 use localize::config::LocalizeConfig;
 use serde::{Deserialize, Serialize};
@@ -66,7 +66,7 @@ pub struct Plan {
     pub width: f32,
     pub trunks: TrunkSource,
     pub runs: Vec<FineTune>,
-    pub backend: CpuBackend,
+    pub backend: ComputeBackend,
     pub localize: LocalizeConfig,
 }
 
@@ -86,7 +86,7 @@ impl Plan {
                 FineTune { backbone: Backbone::Vgg16, epochs: 16 },
                 FineTune { backbone: Backbone::Alexnet, epochs: 40 },
             ],
-            backend: CpuBackend::default(),
+            backend: ComputeBackend::default(),
             localize: LocalizeConfig::paper_estimator(),
         }
     }
@@ -109,7 +109,7 @@ impl Plan {
                 epochs: 1,
             },
             runs: BACKBONES.iter().map(|&backbone| FineTune { backbone, epochs: 2 }).collect(),
-            backend: CpuBackend::default(),
+            backend: ComputeBackend::default(),
             localize: LocalizeConfig::paper_estimator(),
         }
     }

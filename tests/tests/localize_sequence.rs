@@ -218,13 +218,15 @@ fn the_shipped_detectors_run_inside_localization() {
         let checkpoint = manifest_dir().join("../checkpoints").join(backbone);
         let config = infer::checkpoint::read_config(&checkpoint).unwrap();
         assert_eq!(config.backbone.name(), backbone);
-        let mut detector = CornerSource::detector(&checkpoint, infer::backend::CpuBackend::Flex.device(), 0.3).unwrap();
+        let mut detector =
+            CornerSource::detector(&checkpoint, infer::backend::ComputeBackend::Flex.device().unwrap(), 0.3).unwrap();
         let result = run_sequence(&sequence, &mut detector, &LocalizeConfig::default(), false).unwrap();
         assert_eq!(result.trajectory.len(), 4);
         let found = result.frames.iter().map(|f| f.detections).sum::<usize>();
         assert!(found > 0, "{backbone}: no corner in 4 frames");
     }
     // A detector of another kind of file is refused with the path named.
-    let error = CornerSource::detector(dir.path(), infer::backend::CpuBackend::Flex.device(), 0.3).err().unwrap();
+    let error =
+        CornerSource::detector(dir.path(), infer::backend::ComputeBackend::Flex.device().unwrap(), 0.3).err().unwrap();
     assert!(error.to_string().contains(&dir.path().display().to_string()), "{error}");
 }

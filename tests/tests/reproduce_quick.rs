@@ -31,7 +31,7 @@ fn quick_reproduction_writes_a_sane_report_and_resumes() {
     for r in &results.runs {
         assert!(r.final_train_loss.is_finite() && r.final_train_loss > 0.0, "{:?}", r);
         // The metrics are those of the checkpoint that was written, on the test split.
-        let detector = infer::Detector::load(&r.run.join("checkpoint"), plan.backend.device()).unwrap();
+        let detector = infer::Detector::load(&r.run.join("checkpoint"), plan.backend.device().unwrap()).unwrap();
         let set = infer::labeled::load_coco_set(&test_set, &detector.config.preprocess).unwrap();
         let again = infer::eval::evaluate_set(&detector, &set, 4);
         assert!(

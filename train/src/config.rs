@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use datasets::InvalidSetting;
-use infer::backend::CpuBackend;
+use infer::backend::ComputeBackend;
 use infer::config::{Backbone, DetectorConfig};
 use infer::pretrained::InputConvention;
 use serde::{Deserialize, Serialize};
@@ -65,7 +65,7 @@ pub struct TrainConfig {
     pub val_fraction: f32,
     /// Random left-right flips of the training images.
     pub augment: bool,
-    pub backend: CpuBackend,
+    pub backend: ComputeBackend,
     /// Where the weights start.
     #[serde(default)]
     pub start: Start,
@@ -115,7 +115,7 @@ impl TrainConfig {
             seed: 42,
             val_fraction: 0.1,
             augment: true,
-            backend: CpuBackend::Flex,
+            backend: ComputeBackend::Flex,
             start: Start::Scratch,
             pretrained_input: InputConvention::Auto,
             pretrained_prune: false,

@@ -51,6 +51,8 @@ pub enum TrainError {
     Checkpoint(#[from] CheckpointError),
     #[error(transparent)]
     Pretrained(#[from] PretrainedError),
+    #[error(transparent)]
+    Backend(#[from] infer::backend::BackendError),
 }
 
 pub type Result<T, E = TrainError> = std::result::Result<T, E>;

@@ -104,7 +104,7 @@ pub fn train_until(
         None => folder.read_for_resume()?,
     };
     let data = Splits::load(&config)?;
-    let device = config.backend.device().autodiff();
+    let device = config.backend.device()?.autodiff();
     let (network, mut optim, mut progress, pretrained) = start(&config, &folder, progress, &device, show_progress)?;
     // Written once the settings proved usable (data read, weights loaded).
     folder.write_settings(&config, pretrained.as_ref())?;

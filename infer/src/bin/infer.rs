@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand};
 use image::{DynamicImage, Rgb};
-use infer::backend::CpuBackend;
+use infer::backend::ComputeBackend;
 use infer::{Detection, Detector};
 use serde::Serialize;
 
@@ -54,7 +54,7 @@ struct EvalPointsArgs {
     #[arg(long)]
     json: bool,
     #[arg(long, value_enum, default_value_t)]
-    backend: CpuBackend,
+    backend: ComputeBackend,
 }
 
 #[derive(Debug, Args)]
@@ -72,7 +72,7 @@ struct DetectArgs {
     #[arg(long)]
     min_score: Option<f32>,
     #[arg(long, value_enum, default_value_t)]
-    backend: CpuBackend,
+    backend: ComputeBackend,
 }
 
 #[derive(Debug, Args)]
@@ -87,7 +87,7 @@ struct EvalArgs {
     #[arg(long)]
     json: bool,
     #[arg(long, value_enum, default_value_t)]
-    backend: CpuBackend,
+    backend: ComputeBackend,
 }
 
 #[derive(Serialize)]
@@ -111,8 +111,8 @@ fn run_main() -> Result<()> {
     }
 }
 
-fn load(checkpoint: &Path, backend: CpuBackend) -> Result<Detector> {
-    Ok(Detector::load(checkpoint, backend.device())?)
+fn load(checkpoint: &Path, backend: ComputeBackend) -> Result<Detector> {
+    Ok(Detector::load(checkpoint, backend.device()?)?)
 }
 
 fn detect(args: DetectArgs) -> Result<()> {

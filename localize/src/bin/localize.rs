@@ -66,8 +66,8 @@ struct BenchmarkArgs {
     quick: bool,
     #[arg(long, default_value = "checkpoints/faster-rcnn")]
     checkpoint: PathBuf,
-    #[arg(long, value_enum, default_value_t = infer::backend::CpuBackend::Flex)]
-    backend: infer::backend::CpuBackend,
+    #[arg(long, value_enum, default_value_t = infer::backend::ComputeBackend::Flex)]
+    backend: infer::backend::ComputeBackend,
     /// Localization settings as JSON (see config.json of a run).
     #[arg(long)]
     config: Option<PathBuf>,
@@ -85,8 +85,8 @@ struct BenchArgs {
     /// Detector checkpoint to time (skipped when the folder is missing).
     #[arg(long, default_value = "checkpoints/faster-rcnn")]
     checkpoint: PathBuf,
-    #[arg(long, value_enum, default_value_t = infer::backend::CpuBackend::Flex)]
-    backend: infer::backend::CpuBackend,
+    #[arg(long, value_enum, default_value_t = infer::backend::ComputeBackend::Flex)]
+    backend: infer::backend::ComputeBackend,
     #[arg(long)]
     json: bool,
 }
@@ -195,8 +195,8 @@ struct RunArgs {
     label_noise_px: f64,
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    #[arg(long, value_enum, default_value_t = infer::backend::CpuBackend::Flex)]
-    backend: infer::backend::CpuBackend,
+    #[arg(long, value_enum, default_value_t = infer::backend::ComputeBackend::Flex)]
+    backend: infer::backend::ComputeBackend,
 }
 
 #[derive(clap::Args)]
@@ -428,7 +428,7 @@ fn benchmark(args: &BenchmarkArgs) -> Result<()> {
     plan.validate().map_err(|m| anyhow::anyhow!("invalid benchmark: {m}"))?;
     let config = read_config(args.config.as_deref())?;
     let show = !std::env::var("CI").is_ok_and(|v| v == "true");
-    let rows = run_benchmark(&args.out, &plan, &args.checkpoint, args.backend.device(), &config, show)?;
+    let rows = run_benchmark(&args.out, &plan, &args.checkpoint, args.backend.device()?, &config, show)?;
     write_tables(&args.out, &plan, &rows)?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&rows)?);
@@ -472,7 +472,7 @@ fn run(args: &RunArgs) -> Result<()> {
     let mut source = match &args.corners_from_labels {
         _ if args.without_camera => CornerSource::Off,
         Some(labels) => CornerSource::labels(labels, args.label_noise_px, args.seed)?,
-        None => CornerSource::detector(&args.checkpoint, args.backend.device(), config.fusion.min_score)?,
+        None => CornerSource::detector(&args.checkpoint, args.backend.device()?, config.fusion.min_score)?,
     };
     let map = match &args.map {
         Some(dir) => Some(MapStart { map: localize::map_output::read_map(dir)?, start: args.start_pose }),
@@ -635,7 +635,7 @@ fn bench(args: &BenchArgs) -> Result<()> {
         image::Rgb([v, v, v])
     }));
     let detector = if args.checkpoint.is_dir() {
-        Some(infer::detector::Detector::load(&args.checkpoint, args.backend.device())?)
+        Some(infer::detector::Detector::load(&args.checkpoint, args.backend.device()?)?)
     } else {
         None
     };

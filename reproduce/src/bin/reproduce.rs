@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use anyhow::Result;
 use clap::Parser;
 use datasets::corpus::CorpusConfig;
-use infer::backend::CpuBackend;
+use infer::backend::ComputeBackend;
 use reproduce::plan::{Plan, TrunkSource};
 
 #[derive(Debug, Parser)]
@@ -33,7 +33,7 @@ struct Args {
     #[arg(long, default_value = "checkpoints")]
     checkpoints: PathBuf,
     #[arg(long, value_enum, default_value_t)]
-    backend: CpuBackend,
+    backend: ComputeBackend,
 }
 
 fn main() -> std::process::ExitCode {

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::{Result, bail};
 use clap::Parser;
-use infer::backend::CpuBackend;
+use infer::backend::ComputeBackend;
 use infer::config::{Backbone, DEFAULT_WIDTH, GridHead};
 use infer::pretrained::InputConvention;
 use train::{OptimizerKind, TrainConfig};
@@ -49,7 +49,7 @@ struct Args {
     #[arg(long)]
     no_augment: bool,
     #[arg(long, value_enum, default_value_t)]
-    backend: CpuBackend,
+    backend: ComputeBackend,
     /// Width of the fully connected layers (default: 4096 x width^2, at least 64).
     #[arg(long, value_parser = datasets::cli::positive_count)]
     hidden: Option<usize>,

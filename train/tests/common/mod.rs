@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
 use datasets::generate::{DatagenConfig, generate};
-use infer::backend::CpuBackend;
+use infer::backend::ComputeBackend;
 use infer::config::Backbone;
 use train::TrainConfig;
 
@@ -22,6 +22,7 @@ pub fn tiny_data() -> &'static PathBuf {
     })
 }
 
+#[allow(dead_code)] // not every test binary uses it
 pub fn tiny_config(backbone: Backbone, epochs: usize) -> TrainConfig {
     let mut c = TrainConfig::new(backbone, 0.125, tiny_data().clone());
     c.epochs = epochs;
@@ -29,7 +30,7 @@ pub fn tiny_config(backbone: Backbone, epochs: usize) -> TrainConfig {
     c.val_fraction = 0.0;
     c.augment = false;
     c.warmup_iterations = 3;
-    c.backend = CpuBackend::Flex;
+    c.backend = ComputeBackend::Flex;
     c
 }
 

@@ -7,7 +7,7 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use burn::prelude::*;
 use image::GrayImage;
-use infer::backend::CpuBackend;
+use infer::backend::ComputeBackend;
 use infer::config::{Backbone, DetectorConfig};
 use infer::network::Network;
 use rand::SeedableRng;
@@ -17,7 +17,7 @@ use train::step::{Batch, batch_losses};
 #[derive(serde::Serialize, serde::Deserialize)]
 struct Figures {
     backbone: Backbone,
-    backend: CpuBackend,
+    backend: ComputeBackend,
     width: f32,
     batch: usize,
     train_images_per_s: f64,
@@ -27,7 +27,7 @@ struct Figures {
 }
 
 pub fn run(
-    backend: CpuBackend,
+    backend: ComputeBackend,
     width: f32,
     batch: usize,
     steps: usize,
@@ -93,9 +93,9 @@ fn synthetic_batch(config: &DetectorConfig, batch: usize, device: &Device) -> Ba
     Batch { inputs: infer::detector::input_tensor(&edges, device), start: 0, boxes }
 }
 
-fn measure(backbone: Backbone, backend: CpuBackend, width: f32, batch: usize, steps: usize) -> Result<Figures> {
+fn measure(backbone: Backbone, backend: ComputeBackend, width: f32, batch: usize, steps: usize) -> Result<Figures> {
     let config = DetectorConfig::new(backbone, width);
-    let device = backend.device().autodiff();
+    let device = backend.device()?.autodiff();
     let mut network = Network::new(&config, &device);
     // Burn as it comes (its AdamW) or the project's fused AdamW, as training uses.
     let mut optim = if infer::cpu_kernels::enabled() {
@@ -114,6 +114,8 @@ fn measure(backbone: Backbone, backend: CpuBackend, width: f32, batch: usize, st
     for _ in 0..steps {
         network = step(network);
     }
+    // A GPU runs behind the host: the clock stops when its queue is done.
+    device.sync().context("waiting for the device")?;
     let train_images_per_s = (steps * batch) as f64 / started.elapsed().as_secs_f64();
 
     let plain = device.without_autodiff();
@@ -124,6 +126,7 @@ fn measure(backbone: Backbone, backend: CpuBackend, width: f32, batch: usize, st
     for _ in 0..steps {
         let _ = model.detect(&config, inputs.clone());
     }
+    plain.sync().context("waiting for the device")?;
     let infer_ms_per_image = started.elapsed().as_secs_f64() * 1e3 / (steps * batch) as f64;
     Ok(Figures {
         backbone,

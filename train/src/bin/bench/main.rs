@@ -10,7 +10,7 @@ mod detectors;
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
-use infer::backend::CpuBackend;
+use infer::backend::ComputeBackend;
 use infer::config::{Backbone, DEFAULT_WIDTH};
 
 #[derive(Debug, Parser)]
@@ -25,7 +25,7 @@ enum Command {
     /// Time a training step and inference of each detector.
     Detectors {
         #[arg(long, value_enum, default_value_t)]
-        backend: CpuBackend,
+        backend: ComputeBackend,
         #[arg(long, default_value_t = DEFAULT_WIDTH)]
         width: f32,
         #[arg(long, default_value_t = 8)]
