@@ -56,12 +56,62 @@ fn wgpu_device() -> Result<Device, BackendError> {
 
 #[cfg(feature = "wgpu")]
 fn wgpu_device() -> Result<Device, BackendError> {
+    use burn::tensor::wgpu::WgpuBackend;
+    // The graphics APIs the networks' kernels compile on. Not OpenGL: where no
+    // Vulkan driver is found wgpu falls back to it, and its shader validation
+    // rejects the matrix product's kernels.
+    const APIS: &[WgpuBackend] = if cfg!(target_os = "macos") || cfg!(target_os = "ios") {
+        &[WgpuBackend::Auto]
+    } else if cfg!(target_os = "windows") {
+        &[WgpuBackend::Vulkan, WgpuBackend::Dx12]
+    } else {
+        &[WgpuBackend::Vulkan]
+    };
     // wgpu starts once per process; later calls share that device (or its error).
     static DEVICE: std::sync::OnceLock<Result<Device, String>> = std::sync::OnceLock::new();
     DEVICE
-        .get_or_init(|| Device::wgpu_options().init().map_err(|e| e.to_string()))
+        .get_or_init(|| {
+            let mut errors = Vec::new();
+            for &api in APIS {
+                let started = Device::wgpu_options().graphics_api(api).init().map_err(|e| e.to_string());
+                match started.and_then(|device| check_matmul(&device).map(|()| device)) {
+                    Ok(device) => return Ok(device),
+                    Err(e) => errors.push(format!("{api:?}: {e}")),
+                }
+            }
+            Err(errors.join("; "))
+        })
         .clone()
         .map_err(BackendError::NoAdapter)
+}
+
+/// Matrix products computed on the device: an adapter can start and still be
+/// unable to compile the kernels (OpenGL drivers reject some of the matrix
+/// product's shaders), which should stop the run here, not at its first
+/// convolution. The shapes take kernels of vector widths 1, 2 and 4.
+#[cfg(feature = "wgpu")]
+fn check_matmul(device: &Device) -> Result<(), String> {
+    for (m, k, n) in [(5usize, 5usize, 5usize), (6, 6, 6), (8, 8, 8), (130, 66, 34), (256, 72, 200)] {
+        let a: Vec<f32> = (0..m * k).map(|i| (i % 7) as f32 - 3.0).collect();
+        let b: Vec<f32> = (0..k * n).map(|i| (i % 5) as f32 - 2.0).collect();
+        // Small integers: the product is exact in f32 in any summation order.
+        let want: Vec<f32> = (0..m * n).map(|o| (0..k).map(|j| a[(o / n) * k + j] * b[j * n + o % n]).sum()).collect();
+        let a = Tensor::<2>::from_data(TensorData::new(a, [m, k]), device);
+        let b = Tensor::<2>::from_data(TensorData::new(b, [k, n]), device);
+        let data = a.matmul(b).try_into_data().map_err(|e| {
+            // The runtime's trace is long: keep the lines that say what failed.
+            let text = e.to_string();
+            let failed: Vec<&str> = text.lines().map(str::trim).filter(|l| l.contains("failed")).take(2).collect();
+            let why =
+                if failed.is_empty() { text.lines().next().unwrap_or("").to_string() } else { failed.join(" / ") };
+            format!("the adapter cannot run the networks' kernels: {why}")
+        })?;
+        let product = data.try_to_vec::<f32>().map_err(|e| format!("{e:?}"))?;
+        if product != want {
+            return Err(format!("the adapter's {m} x {k} by {k} x {n} matrix product is wrong"));
+        }
+    }
+    Ok(())
 }
 
 #[cfg(test)]

@@ -94,3 +94,27 @@ pub fn batch_losses(network: &Network, config: &DetectorConfig, batch: &Batch, r
         }
     }
 }
+
+/// A synthetic batch (benchmarks, backend comparisons): edge maps of a
+/// diagonal pattern with six boxes each, the same on every device.
+pub fn synthetic_batch(config: &DetectorConfig, batch: usize, device: &Device) -> Batch {
+    let size = config.preprocess.size;
+    let edges: Vec<image::GrayImage> = (0..batch)
+        .map(|i| {
+            image::GrayImage::from_fn(size, size, |x, y| {
+                if (x * 7 + y * 13 + i as u32 * 31).is_multiple_of(17) { image::Luma([255]) } else { image::Luma([0]) }
+            })
+        })
+        .collect();
+    let boxes = (0..batch)
+        .map(|i| {
+            (0..6)
+                .map(|k| {
+                    let (x, y) = (20.0 + 30.0 * k as f32, 30.0 + 20.0 * ((i + k) % 7) as f32);
+                    BBox::new(x, y, x + 17.0, y + 22.0)
+                })
+                .collect()
+        })
+        .collect();
+    Batch { inputs: input_tensor(&edges, device), start: 0, boxes }
+}

@@ -61,29 +61,6 @@ fn shipped_detectors_find_the_same_corners_on_wgpu_as_on_the_cpu() {
     }
 }
 
-/// A batch of two edge maps (every seventeenth pixel of a diagonal pattern
-/// lit) with six boxes each: what matters is that both backends see the same.
-fn batch(size: u32, device: &burn::prelude::Device) -> train::step::Batch {
-    let edges: Vec<image::GrayImage> = (0..2u32)
-        .map(|i| {
-            image::GrayImage::from_fn(size, size, |x, y| {
-                image::Luma([if (x * 7 + y * 13 + i * 31) % 17 == 0 { 255 } else { 0 }])
-            })
-        })
-        .collect();
-    let boxes = (0..2)
-        .map(|i| {
-            (0..6)
-                .map(|k| {
-                    let (x, y) = (20.0 + 30.0 * k as f32, 30.0 + 20.0 * ((i + k) % 7) as f32);
-                    infer::boxes::BBox::new(x, y, x + 17.0, y + 22.0)
-                })
-                .collect()
-        })
-        .collect();
-    train::step::Batch { inputs: infer::detector::input_tensor(&edges, device), start: 0, boxes }
-}
-
 /// Three training steps (losses, backward, AdamW) from the same shipped
 /// weights on the CPU and on wgpu: the losses of every step agree, so the
 /// gradients and the optimizer's update agree too.
@@ -95,7 +72,7 @@ fn training_steps_on_wgpu_match_the_cpu() {
         for device in [ComputeBackend::Flex.device().unwrap(), wgpu()] {
             let device = device.autodiff();
             let (config, mut network, _) = infer::checkpoint::load(&dir, &device).unwrap();
-            let data = batch(config.preprocess.size, &device);
+            let data = train::step::synthetic_batch(&config, 2, &device);
             let mut optim = train::fused_adamw::FusedAdamW::new(1e-4).init(None);
             // The same seed: Faster R-CNN samples the same anchors and proposals.
             let mut rng = <rand::rngs::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(3);

@@ -5,14 +5,12 @@
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
-use burn::prelude::*;
-use image::GrayImage;
 use infer::backend::ComputeBackend;
 use infer::config::{Backbone, DetectorConfig};
 use infer::network::Network;
 use rand::SeedableRng;
 use rand::rngs::ChaCha8Rng;
-use train::step::{Batch, batch_losses};
+use train::step::batch_losses;
 
 #[derive(serde::Serialize, serde::Deserialize)]
 struct Figures {
@@ -70,29 +68,6 @@ pub fn run(
     Ok(())
 }
 
-/// A synthetic batch: random edge maps with a few boxes each.
-fn synthetic_batch(config: &DetectorConfig, batch: usize, device: &Device) -> Batch {
-    let size = config.preprocess.size;
-    let edges: Vec<GrayImage> = (0..batch)
-        .map(|i| {
-            GrayImage::from_fn(size, size, |x, y| {
-                if (x * 7 + y * 13 + i as u32 * 31).is_multiple_of(17) { image::Luma([255]) } else { image::Luma([0]) }
-            })
-        })
-        .collect();
-    let boxes = (0..batch)
-        .map(|i| {
-            (0..6)
-                .map(|k| {
-                    let (x, y) = (20.0 + 30.0 * k as f32, 30.0 + 20.0 * ((i + k) % 7) as f32);
-                    infer::boxes::BBox::new(x, y, x + 17.0, y + 22.0)
-                })
-                .collect()
-        })
-        .collect();
-    Batch { inputs: infer::detector::input_tensor(&edges, device), start: 0, boxes }
-}
-
 fn measure(backbone: Backbone, backend: ComputeBackend, width: f32, batch: usize, steps: usize) -> Result<Figures> {
     let config = DetectorConfig::new(backbone, width);
     let device = backend.device()?.autodiff();
@@ -103,7 +78,7 @@ fn measure(backbone: Backbone, backend: ComputeBackend, width: f32, batch: usize
     } else {
         burn::optim::AdamWConfig::new().init()
     };
-    let data = synthetic_batch(&config, batch, &device);
+    let data = train::step::synthetic_batch(&config, batch, &device);
     let mut rng = ChaCha8Rng::seed_from_u64(1);
     let mut step = |network: Network| -> Network {
         let losses = batch_losses(&network, &config, &data, &mut rng);
@@ -120,7 +95,7 @@ fn measure(backbone: Backbone, backend: ComputeBackend, width: f32, batch: usize
 
     let plain = device.without_autodiff();
     let model = network.valid();
-    let inputs = synthetic_batch(&config, batch, &plain).inputs;
+    let inputs = train::step::synthetic_batch(&config, batch, &plain).inputs;
     let _ = model.detect(&config, inputs.clone());
     let started = Instant::now();
     for _ in 0..steps {
