@@ -14,8 +14,8 @@ pub enum ComputeBackend {
     #[default]
     Flex,
     Ndarray,
-    /// The first adapter wgpu prefers (a discrete GPU first); `CUBECL_WGPU_DEFAULT_DEVICE`
-    /// overrides the choice.
+    /// A GPU through wgpu on Vulkan (Metal on macOS, DX12 after Vulkan on Windows): the
+    /// adapter wgpu prefers, a discrete GPU first; `CUBECL_WGPU_DEFAULT_DEVICE` picks another.
     Wgpu,
 }
 
@@ -40,12 +40,6 @@ impl ComputeBackend {
             Self::Ndarray => Ok(Device::ndarray()),
             Self::Wgpu => wgpu_device(),
         }
-    }
-
-    /// Whether this is a CPU backend (the project's CPU kernels and its
-    /// host-side fast paths apply only there).
-    pub fn is_cpu(self) -> bool {
-        !matches!(self, Self::Wgpu)
     }
 }
 
