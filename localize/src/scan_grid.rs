@@ -21,13 +21,20 @@ use rayon::prelude::*;
 const ANGLE_MARGIN: f64 = 1e-6;
 
 /// Buffers of one searching thread, reused from search to search.
-#[derive(Debug, Default)]
+#[derive(Debug)]
 pub struct NeighbourScratch {
-    distances: Vec<f32>,
+    runs: Vec<[usize; 2]>,
+    distances: [f32; 64],
     /// A candidate's squared distance (its f32 bits, which order as the
     /// values do for values >= 0) above its place in the cell order.
     candidates: Vec<u64>,
     found: Vec<u32>,
+}
+
+impl Default for NeighbourScratch {
+    fn default() -> Self {
+        Self { runs: Vec::new(), distances: [0.0; 64], candidates: Vec::new(), found: Vec::new() }
+    }
 }
 
 pub struct ScanGrid {
@@ -161,11 +168,13 @@ impl ScanGrid {
         self.original.is_empty()
     }
 
+    #[inline]
     fn row_of(&self, elevation: f64) -> usize {
         let row = ((elevation - self.elevation0) / self.row_height).floor();
         if row.is_nan() { 0 } else { (row.max(0.0) as usize).min(self.rows - 1) }
     }
 
+    #[inline]
     fn col_of(&self, azimuth: f64) -> i64 {
         let col = ((azimuth + PI) / self.col_width).floor();
         if col.is_nan() { 0 } else { col as i64 }
@@ -177,6 +186,7 @@ impl ScanGrid {
 
     /// Every cell that can hold a point within `distance` of a point seen in
     /// direction `at`.
+    #[inline(always)]
     fn window(&self, at: &Direction, distance: f64) -> Window {
         let everything = Window { row_lo: 0, row_hi: self.rows - 1, col_lo: 0, col_hi: self.cols as i64 - 1 };
         if !(distance < at.range) {
@@ -204,41 +214,54 @@ impl ScanGrid {
         Window { row_lo, row_hi, col_lo, col_hi }
     }
 
-    /// The runs of the cell order that a window covers: per row one run,
-    /// two where the columns wrap around.
-    fn runs(&self, w: &Window, mut visit: impl FnMut(usize, usize)) {
+    /// The runs of the cell order that a window covers, into `runs`: per
+    /// row one run, two where the columns wrap around; empty runs left out.
+    #[inline(always)]
+    fn runs(&self, w: &Window, runs: &mut Vec<[usize; 2]>) {
+        runs.clear();
         let cols = self.cols as i64;
         for row in w.row_lo..=w.row_hi {
             let base = row * self.cols;
-            let mut run = |c0: usize, c1: usize| {
-                let a = self.cell_start[base + c0] as usize;
-                let b = self.cell_start[base + c1 + 1] as usize;
-                if a < b {
-                    visit(a, b);
-                }
-            };
             let lo = w.col_lo.rem_euclid(cols) as usize;
             let hi = lo + (w.col_hi - w.col_lo) as usize;
-            if hi < self.cols {
-                run(lo, hi);
-            } else {
-                run(lo, self.cols - 1);
-                run(0, hi - self.cols);
+            let parts = if hi < self.cols { [[lo, hi], [1, 0]] } else { [[lo, self.cols - 1], [0, hi - self.cols]] };
+            for [c0, c1] in parts {
+                if c0 <= c1 {
+                    let a = self.cell_start[base + c0] as usize;
+                    let b = self.cell_start[base + c1 + 1] as usize;
+                    if a < b {
+                        runs.push([a, b]);
+                    }
+                }
             }
         }
     }
 
-    /// The `k` nearest points to point `i` (itself included), as input
-    /// indices in no particular order (the same for the same grid and
-    /// hint). `hint` is the neighbourhood radius to try first, updated to
-    /// this search's k-th distance (scans list points in sweep order, so the
-    /// next point's neighbourhood is about as large).
+    /// The input index of the point at `slot` of the cell order.
+    #[inline]
+    pub fn input_index(&self, slot: u32) -> usize {
+        self.original[slot as usize] as usize
+    }
+
+    /// The point at `slot` of the cell order.
+    #[inline]
+    pub fn point(&self, slot: u32) -> [f32; 3] {
+        let j = slot as usize;
+        [self.xs[j], self.ys[j], self.zs[j]]
+    }
+
+    /// The `k` nearest points to point `i` (itself included), as slots of
+    /// the cell order (`point`, `input_index`), in no particular order;
+    /// among points equally far, those earlier in the cell order. `hint`
+    /// is the neighbourhood radius to try first, updated to this search's
+    /// k-th distance (scans list points in sweep order, so the next point's
+    /// neighbourhood is about as large).
+    #[inline(always)]
     pub fn nearest<'s>(&self, i: usize, k: usize, hint: &mut f64, scratch: &'s mut NeighbourScratch) -> &'s [u32] {
         let at = self.directions[i];
-        let slot = self.slot[i] as usize;
-        let p = [self.xs[slot], self.ys[slot], self.zs[slot]];
+        let p = self.point(self.slot[i]);
         let k = k.min(self.len());
-        let NeighbourScratch { distances, candidates, found } = scratch;
+        let NeighbourScratch { runs, distances, candidates, found } = scratch;
         found.clear();
         if k == 0 {
             return found;
@@ -250,28 +273,33 @@ impl ScanGrid {
             let window = self.window(&at, radius * (1.0 + 1e-5));
             let r2 = (radius * radius) as f32;
             candidates.clear();
-            self.runs(&window, |a, b| {
-                distances.clear();
-                let (xs, ys, zs) = (&self.xs[a..b], &self.ys[a..b], &self.zs[a..b]);
-                distances.extend(xs.iter().zip(ys).zip(zs).map(|((x, y), z)| {
-                    let d = [x - p[0], y - p[1], z - p[2]];
-                    d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
-                }));
-                // Every candidate is written and only those inside the ball
-                // advance `kept`: no branch to mispredict.
-                let mut kept = candidates.len();
-                candidates.resize(kept + distances.len(), 0);
-                for (j, &d2) in distances.iter().enumerate() {
-                    candidates[kept] = (u64::from(d2.to_bits()) << 32) | (a + j) as u64;
-                    kept += usize::from(d2 <= r2);
+            self.runs(&window, runs);
+            for &[a, b] in runs.iter() {
+                candidates.reserve(b - a);
+                for start in (a..b).step_by(64) {
+                    let end = (start + 64).min(b);
+                    let (xs, ys, zs) = (&self.xs[start..end], &self.ys[start..end], &self.zs[start..end]);
+                    // The squared distances and which of them are inside the
+                    // ball as bits (compared 8 at a time), then only those read.
+                    let mut inside = 0u64;
+                    for (j, ((x, y), z)) in xs.iter().zip(ys).zip(zs).enumerate() {
+                        let d = [x - p[0], y - p[1], z - p[2]];
+                        let d2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+                        distances[j] = d2;
+                        inside |= u64::from(d2 <= r2) << j;
+                    }
+                    while inside != 0 {
+                        let j = inside.trailing_zeros() as usize;
+                        candidates.push((u64::from(distances[j].to_bits()) << 32) | (start + j) as u64);
+                        inside &= inside - 1;
+                    }
                 }
-                candidates.truncate(kept);
-            });
+            }
             if candidates.len() < k {
                 if radius == f64::INFINITY {
                     // Fewer than k points at a finite distance (a NaN
                     // coordinate): all of them.
-                    found.extend(candidates.iter().map(|&c| self.original[(c & u64::from(u32::MAX)) as usize]));
+                    found.extend(candidates.iter().map(|&c| c as u32));
                     return found;
                 }
                 if !(radius < at.range) {
@@ -284,9 +312,9 @@ impl ScanGrid {
                 radius *= grow.clamp(1.2, 4.0);
                 continue;
             }
-            candidates.select_nth_unstable(k - 1);
-            *hint = f64::from(f32::from_bits((candidates[k - 1] >> 32) as u32)).sqrt();
-            found.extend(candidates[..k].iter().map(|&c| self.original[(c & u64::from(u32::MAX)) as usize]));
+            let farthest = select_smallest(candidates, k, r2);
+            *hint = f64::from(f32::from_bits((farthest >> 32) as u32)).sqrt();
+            found.extend(candidates[..k].iter().map(|&c| c as u32));
             return found;
         }
     }
@@ -296,15 +324,42 @@ impl ScanGrid {
         let at = Direction::of(&(x - self.sensor));
         let window = self.window(&at, radius);
         let r2 = radius * radius;
-        self.runs(&window, |a, b| {
+        let mut runs = Vec::new();
+        self.runs(&window, &mut runs);
+        for [a, b] in runs {
             for j in a..b {
                 let q = Vec3::new(f64::from(self.xs[j]), f64::from(self.ys[j]), f64::from(self.zs[j]));
                 if (q - x).norm_squared() <= r2 {
                     visit(self.original[j] as usize);
                 }
             }
-        });
+        }
     }
+}
+
+/// Moves the `k` smallest of `keys` (squared distances within `r2` in
+/// their high halves, as candidates are) to its front and returns the
+/// largest of them. The same as a selection of the k-th key, cheaper: the
+/// keys are first split at a guess of the k-th distance (points on a surface
+/// fill a ball's squared radius about evenly), without branches, so that
+/// the selection proper runs over the few keys near it.
+#[inline(always)]
+fn select_smallest(keys: &mut [u64], k: usize, r2: f32) -> u64 {
+    debug_assert!(k >= 1 && keys.len() >= k);
+    let guess = r2 * (k as f32 / keys.len() as f32);
+    let split = if guess.is_finite() { (u64::from(guess.to_bits()) << 32) | u64::from(u32::MAX) } else { u64::MAX };
+    let mut below = 0;
+    for i in 0..keys.len() {
+        // Keys before `below` are at most `split`, those from `below` to `i` above it.
+        keys.swap(i, below);
+        below += usize::from(keys[below] <= split);
+    }
+    if below >= k {
+        keys[..below].select_nth_unstable(k - 1);
+    } else {
+        keys[below..].select_nth_unstable(k - below - 1);
+    }
+    keys[k - 1]
 }
 
 #[cfg(test)]
@@ -363,12 +418,50 @@ mod tests {
             for k in [1, 25, 40] {
                 let mut hint = f64::INFINITY;
                 for (i, p) in cloud.iter().enumerate() {
-                    let mut found = grid.nearest(i, k, &mut hint, &mut scratch).to_vec();
+                    let mut found: Vec<u32> = grid
+                        .nearest(i, k, &mut hint, &mut scratch)
+                        .iter()
+                        .map(|&s| grid.input_index(s) as u32)
+                        .collect();
                     found.sort_unstable();
                     assert_eq!(found, brute_nearest(&cloud, p, k), "point {i} at {p:?}, k {k}");
                 }
             }
         }
+    }
+
+    #[test]
+    fn select_smallest_takes_the_k_smallest_keys() {
+        let mut rng = ChaCha8Rng::seed_from_u64(21);
+        for case in 0..2000 {
+            let n = rng.random_range(1..200usize);
+            let k = rng.random_range(1..=n);
+            let r2 = rng.random_range(0.01f32..4.0);
+            // Distances evenly spread, bunched near zero or near the radius,
+            // all equal (a guess that splits nothing), and with ties.
+            let keys: Vec<u64> = (0..n)
+                .map(|slot| {
+                    let u: f32 = rng.random_range(0.0..1.0);
+                    let d2 = match case % 4 {
+                        0 => r2 * u,
+                        1 => r2 * u.powi(6),
+                        2 => r2 * 0.5,
+                        _ => r2 * (u * 4.0).floor() / 4.0,
+                    };
+                    (u64::from(d2.to_bits()) << 32) | slot as u64
+                })
+                .collect();
+            let mut sorted = keys.clone();
+            sorted.sort_unstable();
+            let mut selected = keys.clone();
+            let farthest = select_smallest(&mut selected, k, r2);
+            assert_eq!(farthest, sorted[k - 1], "case {case}: n {n}, k {k}");
+            selected[..k].sort_unstable();
+            assert_eq!(selected[..k], sorted[..k], "case {case}: n {n}, k {k}");
+        }
+        // An infinite ball (the search's last resort) splits nothing.
+        let mut keys: Vec<u64> = (0..10u64).rev().map(|slot| (u64::from(1.5f32.to_bits()) << 32) | slot).collect();
+        assert_eq!(select_smallest(&mut keys, 3, f32::INFINITY) & 0xffff_ffff, 2);
     }
 
     #[test]
@@ -397,13 +490,19 @@ mod tests {
         let one = [Point3::new(1.0f32, 0.0, 0.0)];
         let grid = ScanGrid::new(&one, &sensor);
         let mut hint = f64::INFINITY;
-        assert_eq!(grid.nearest(0, 3, &mut hint, &mut NeighbourScratch::default()), [0]);
+        let mut scratch = NeighbourScratch::default();
+        let found = grid.nearest(0, 3, &mut hint, &mut scratch);
+        assert_eq!(found.iter().map(|&s| grid.input_index(s)).collect::<Vec<_>>(), [0]);
         // A NaN coordinate: the search ends with the points it can measure.
         let mut with_nan: Vec<Point3<f32>> = (0..5).map(|i| Point3::new(1.0, i as f32 * 0.1, 0.0)).collect();
         with_nan.push(Point3::new(f32::NAN, 0.0, 0.0));
         let grid = ScanGrid::new(&with_nan, &sensor);
         let mut hint = f64::INFINITY;
-        let mut found = grid.nearest(0, 6, &mut hint, &mut NeighbourScratch::default()).to_vec();
+        let mut found: Vec<usize> = grid
+            .nearest(0, 6, &mut hint, &mut NeighbourScratch::default())
+            .iter()
+            .map(|&s| grid.input_index(s))
+            .collect();
         found.sort_unstable();
         assert_eq!(found, [0, 1, 2, 3, 4]);
         assert!(grid.nearest(5, 3, &mut hint, &mut NeighbourScratch::default()).is_empty());
