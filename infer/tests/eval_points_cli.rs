@@ -50,6 +50,27 @@ fn the_shipped_detector_and_the_classic_corners_are_scored_on_york_urban_photos(
     let precision = |k: usize| methods[k]["precision"].as_f64().unwrap();
     assert!(precision(1) > precision(3) + 0.05, "shi-tomasi {} vs random {}", precision(1), precision(3));
 
+    // The same photos named by a COCO file (as `coco-from-points` writes
+    // its halves; paths relative to the file): the same report.
+    let coco = serde_json::json!({
+        "images": [
+            {"id": 1, "file_name": "images/P1020826.jpg", "width": 640, "height": 480},
+            {"id": 2, "file_name": "images/P1020830.jpg", "width": 640, "height": 480},
+        ],
+        "annotations": [],
+        "categories": [{"id": 1, "name": "corner"}],
+    });
+    let coco_path = dir.path().join("test.json");
+    std::fs::write(&coco_path, coco.to_string()).unwrap();
+    let cp = coco_path.to_str().unwrap();
+    let out = infer(&["eval-points", "--checkpoint", c, "--images", cp, "--points", p.to_str().unwrap(), "--json"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(serde_json::from_slice::<serde_json::Value>(&out.stdout).unwrap(), report);
+    // A COCO image without a points file is named.
+    let out = infer(&["eval-points", "--checkpoint", c, "--images", cp, "--points", i]);
+    let message = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && message.contains("P1020826.csv"), "{message}");
+
     // No labelled photo, a bad radius: named refusals.
     let empty = dir.path().join("empty");
     std::fs::create_dir(&empty).unwrap();

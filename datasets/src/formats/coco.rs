@@ -114,6 +114,11 @@ impl CocoDataset {
     }
 }
 
+/// The one category of corner labels (id 1, "corner").
+pub fn corner_categories() -> Vec<CocoCategory> {
+    vec![CocoCategory { id: 1, name: "corner".into(), supercategory: Some("corner".into()) }]
+}
+
 pub fn read_coco(path: &Path) -> Result<CocoDataset> {
     parse_coco(path, &crate::atomic::read_text(path)?)
 }

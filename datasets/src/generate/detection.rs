@@ -13,7 +13,7 @@ use super::config::DatagenConfig;
 use super::{key, progress, stream};
 use crate::atomic;
 use crate::error::Result;
-use crate::formats::{self, CocoAnnotation, CocoCategory, CocoDataset, CocoImage};
+use crate::formats::{self, CocoAnnotation, CocoDataset, CocoImage, corner_categories};
 use crate::math::Pose3;
 use crate::preprocess::preprocess;
 use crate::world::World;
@@ -40,10 +40,6 @@ pub(super) fn coco_annotations(labels: &[CornerLabel], image_id: u64, next_id: &
             }
         })
         .collect()
-}
-
-pub(super) fn categories() -> Vec<CocoCategory> {
-    vec![CocoCategory { id: 1, name: "corner".into(), supercategory: Some("corner".into()) }]
 }
 
 /// A random robot pose in the free space, away from walls and boxes, whose
@@ -174,8 +170,8 @@ pub(crate) fn write_coco_splits(
     train: &[bool],
 ) -> Result<usize> {
     let mut splits = [
-        CocoDataset { categories: categories(), ..Default::default() },
-        CocoDataset { categories: categories(), ..Default::default() },
+        CocoDataset { categories: corner_categories(), ..Default::default() },
+        CocoDataset { categories: corner_categories(), ..Default::default() },
     ];
     let mut next_id = 0;
     let mut label_count = 0;

@@ -8,11 +8,12 @@ use image::DynamicImage;
 use rayon::prelude::*;
 
 use super::config::DatagenConfig;
-use super::detection::{categories, coco_annotations};
+use super::detection::coco_annotations;
 use super::world_description::WorldDescription;
 use super::{key, progress, stream};
 use crate::atomic;
 use crate::error::{DataError, Result};
+use crate::formats::corner_categories;
 use crate::formats::{self, CocoDataset, CocoImage, PcdData, Trajectory};
 use crate::math::Pose3;
 use crate::world::World;
@@ -143,7 +144,7 @@ pub(super) fn write_sequence(dir: &Path, world: &World, rig: &Rig, config: &Data
     formats::write_tum(&dir.join("groundtruth.txt"), &truth)?;
     formats::write_calibration(&dir.join("calib.json"), &rig.calibration())?;
 
-    let mut labels = CocoDataset { categories: categories(), ..Default::default() };
+    let mut labels = CocoDataset { categories: corner_categories(), ..Default::default() };
     let mut next_id = 0;
     for (k, shot) in shots.iter().enumerate() {
         let id = k as u64 + 1;

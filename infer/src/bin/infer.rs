@@ -36,7 +36,9 @@ enum Command {
 struct EvalPointsArgs {
     #[arg(long)]
     checkpoint: PathBuf,
-    /// A folder of photographs (.jpg, .jpeg, .png); those without a points file are skipped.
+    /// A folder of photographs (.jpg, .jpeg, .png; those without a points
+    /// file are skipped), or a COCO JSON file whose images are scored (paths
+    /// relative to it, as `coco-from-points` writes its halves).
     #[arg(long)]
     images: PathBuf,
     /// A folder of NAME.csv point files: a header starting `x,y`, then x,y in
@@ -179,24 +181,27 @@ fn eval(args: EvalArgs) -> Result<()> {
 }
 
 /// The photographs of `dir` that have a points file in `points`, in name order.
-fn labelled_photos(dir: &Path, points: &Path) -> Result<Vec<(PathBuf, PathBuf)>> {
-    let entries = std::fs::read_dir(dir).with_context(|| format!("reading {}", dir.display()))?;
-    let mut found = Vec::new();
-    for entry in entries {
-        let path = entry.with_context(|| format!("reading {}", dir.display()))?.path();
-        let photo = path.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase());
-        if !matches!(photo.as_deref(), Some("jpg" | "jpeg" | "png")) {
-            continue;
-        }
-        let Some(stem) = path.file_stem().and_then(|s| s.to_str()) else { continue };
-        let labels = points.join(format!("{stem}.csv"));
-        if labels.is_file() {
-            found.push((path, labels));
-        }
+/// The photos to score with their label files: those of a folder that have
+/// a `NAME.csv` in `points`, or the images of a COCO file (`NAME.csv` for
+/// each required).
+fn photos_to_score(images: &Path, points: &Path) -> Result<Vec<(PathBuf, PathBuf)>> {
+    if !images.is_file() {
+        return Ok(datasets::formats::labelled_photos(images, points)?);
     }
-    found.sort();
+    let coco = datasets::formats::read_coco(images)?;
+    let root = images.parent().unwrap_or(Path::new("."));
+    let mut found = Vec::new();
+    for im in &coco.images {
+        let photo = root.join(&im.file_name);
+        let stem = photo.file_stem().and_then(|s| s.to_str()).unwrap_or_default();
+        let labels = points.join(format!("{stem}.csv"));
+        if !labels.is_file() {
+            bail!("{}: image {} has no {}", images.display(), im.file_name, labels.display());
+        }
+        found.push((photo, labels));
+    }
     if found.is_empty() {
-        bail!("no photograph in {} has a NAME.csv in {}", dir.display(), points.display());
+        bail!("{}: no images", images.display());
     }
     Ok(found)
 }
@@ -212,12 +217,13 @@ struct MethodScores {
 }
 
 fn eval_points(args: EvalPointsArgs) -> Result<()> {
+    use datasets::formats::read_point_labels;
     use infer::corner_response::{CornerResponse, strongest_corners};
-    use infer::point_eval::{PointScores, read_matlab_points};
+    use infer::point_eval::PointScores;
     if !(0.0..=1.0).contains(&args.min_score) {
         bail!("--min-score {} is outside 0..1", args.min_score);
     }
-    let photos = labelled_photos(&args.images, &args.points)?;
+    let photos = photos_to_score(&args.images, &args.points)?;
     let mut detector = load(&args.checkpoint, args.backend)?;
     detector.config.detection.score_threshold = args.min_score;
     let radius = args.radius as f32;
@@ -229,7 +235,7 @@ fn eval_points(args: EvalPointsArgs) -> Result<()> {
     }
     for (k, (photo, labels_path)) in photos.iter().enumerate() {
         let image = datasets::atomic::read_image(photo)?;
-        let labels = read_matlab_points(labels_path)?;
+        let labels: Vec<[f32; 2]> = read_point_labels(labels_path)?.into_iter().map(|l| l.point).collect();
         let detections = detector.detect(&image);
         let detected: Vec<[f32; 2]> =
             detections.iter().map(|d| [(d.bbox.x1 + d.bbox.x2) / 2.0, (d.bbox.y1 + d.bbox.y2) / 2.0]).collect();
