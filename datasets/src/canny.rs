@@ -15,12 +15,51 @@ use imageproc::gradients::{horizontal_sobel, vertical_sobel};
 /// Edge map (255 on edges, 0 elsewhere) with hysteresis thresholds `low` and
 /// `high` on the Sobel gradient magnitude of the blurred 0..255 image.
 pub fn canny(image: &GrayImage, low: f32, high: f32) -> GrayImage {
-    let (w, h) = image.dimensions();
-    let (w, h) = (w as usize, h as usize);
-    let blurred = gaussian_blur_f32(image, 1.4);
-    let gx = horizontal_sobel(&blurred);
-    let gy = vertical_sobel(&blurred);
-    let magnitude: Vec<f32> = gx.as_raw().iter().zip(gy.as_raw()).map(|(&x, &y)| (x as f32).hypot(y as f32)).collect();
+    edges(&Gradients::of(image), low, high)
+}
+
+/// Edge map with thresholds taken from the image's own gradients: `high`
+/// is the `high_quantile` of the gradient magnitude over the pixels (as
+/// MATLAB's `edge(I, 'canny')` takes its 0.7), `low` is `low_ratio` of it.
+/// Returns the edges and the two thresholds used.
+pub fn canny_adaptive(image: &GrayImage, high_quantile: f32, low_ratio: f32) -> (GrayImage, [f32; 2]) {
+    let gradients = Gradients::of(image);
+    let mut sorted = gradients.magnitude.clone();
+    let high = if sorted.is_empty() {
+        0.0
+    } else {
+        let index = ((high_quantile * sorted.len() as f32) as usize).min(sorted.len() - 1);
+        *sorted.select_nth_unstable_by(index, f32::total_cmp).1
+    };
+    // A flat image has no gradient at all: a zero threshold would make
+    // every pixel an edge.
+    let high = high.max(f32::MIN_POSITIVE);
+    let low = low_ratio * high;
+    (edges(&gradients, low, high), [low, high])
+}
+
+/// Sobel gradients of the image blurred with sigma 1.4, and their magnitude.
+struct Gradients {
+    width: usize,
+    height: usize,
+    gx: Vec<i16>,
+    gy: Vec<i16>,
+    magnitude: Vec<f32>,
+}
+
+impl Gradients {
+    fn of(image: &GrayImage) -> Self {
+        let blurred = gaussian_blur_f32(image, 1.4);
+        let gx = horizontal_sobel(&blurred).into_raw();
+        let gy = vertical_sobel(&blurred).into_raw();
+        let magnitude = gx.iter().zip(&gy).map(|(&x, &y)| f32::from(x).hypot(f32::from(y))).collect();
+        Self { width: image.width() as usize, height: image.height() as usize, gx, gy, magnitude }
+    }
+}
+
+fn edges(gradients: &Gradients, low: f32, high: f32) -> GrayImage {
+    let Gradients { width: w, height: h, gx, gy, magnitude } = gradients;
+    let (w, h) = (*w, *h);
     let at = |x: usize, y: usize| magnitude[y * w + x];
 
     // Non-maximum suppression: keep a pixel that is no weaker than both
@@ -32,7 +71,7 @@ pub fn canny(image: &GrayImage, low: f32, high: f32) -> GrayImage {
             if m < low {
                 continue;
             }
-            let (dx, dy) = (gx.as_raw()[y * w + x] as f32, gy.as_raw()[y * w + x] as f32);
+            let (dx, dy) = (f32::from(gx[y * w + x]), f32::from(gy[y * w + x]));
             // Angle of the gradient in 0..180 deg, y pointing down.
             let mut angle = dy.atan2(dx).to_degrees();
             if angle < 0.0 {
@@ -104,6 +143,34 @@ mod tests {
         let legacy = imageproc::edges::canny(&image, 10.0, 150.0);
         let legacy_rows = (5..55).filter(|&y| (0..w).any(|x| legacy.get_pixel(x, y)[0] == 255)).count();
         assert!(legacy_rows < 50, "imageproc now follows upward edges ({legacy_rows}): consider using it again");
+    }
+
+    #[test]
+    fn adaptive_thresholds_follow_the_contrast() {
+        // The same step at two contrasts: fixed thresholds find the strong
+        // one only, thresholds from the image's own gradients find both,
+        // in the same place, at thresholds that scale with the contrast.
+        let step = |contrast: u8| GrayImage::from_fn(32, 32, |x, _| Luma([if x < 16 { 80 } else { 80 + contrast }]));
+        let (strong, weak) = (step(80), step(10));
+        assert!(canny(&weak, 15.0, 40.0).pixels().all(|p| p[0] == 0));
+        let (edges_strong, [low_strong, high_strong]) = canny_adaptive(&strong, 0.91, 0.375);
+        let (edges_weak, [low_weak, high_weak]) = canny_adaptive(&weak, 0.91, 0.375);
+        for edges in [&edges_strong, &edges_weak] {
+            for y in 2..30 {
+                let on: Vec<u32> = (0..32).filter(|&x| edges.get_pixel(x, y)[0] == 255).collect();
+                assert!(!on.is_empty() && on.iter().all(|x| (14..18).contains(x)), "row {y}: edge at {on:?}");
+            }
+        }
+        // About the contrast ratio 8, up to the blur's rounding to whole grey levels.
+        let ratio = high_strong / high_weak;
+        assert!((5.0..11.0).contains(&ratio), "thresholds {high_strong} and {high_weak}");
+        assert!((low_weak / high_weak - 0.375).abs() < 1e-6 && (low_strong / high_strong - 0.375).abs() < 1e-6);
+        // The high threshold is the quantile: 91% of pixels lie below it.
+        let below = Gradients::of(&strong).magnitude.iter().filter(|&&m| m < high_strong).count();
+        assert!(below as f32 <= 0.91 * 1024.0 + 1.0, "{below} of 1024 below {high_strong}");
+        // A flat image gives no edges, not every pixel.
+        let flat = GrayImage::from_pixel(16, 16, Luma([120]));
+        assert!(canny_adaptive(&flat, 0.91, 0.375).0.pixels().all(|p| p[0] == 0));
     }
 
     #[test]

@@ -2,7 +2,8 @@
 //! user would on their own: York Urban's indoor photos (read from the
 //! shared data folder beside the repository, skipped without it) with
 //! their derived junctions as weak labels, split in halves by
-//! `coco_halves`; the training loss falls and the test half is scored.
+//! `coco_halves`, preprocessed with thresholds that follow each photo's
+//! contrast; the training loss falls and the test half is scored.
 
 use std::path::{Path, PathBuf};
 
@@ -48,6 +49,8 @@ fn the_pretrained_detector_fine_tunes_on_york_urban_photos() {
     config.val_fraction = 0.0;
     config.augment = false;
     config.warmup_iterations = 1;
+    // Thresholds that follow each photo's contrast (`--adaptive-canny`).
+    config.detector.preprocess.adaptive_canny = Some(Default::default());
     let run = dir.path().join("run");
     train::train(Some(config), &run, false).unwrap();
     let csv = std::fs::read_to_string(run.join("losses.csv")).unwrap();
@@ -63,4 +66,7 @@ fn the_pretrained_detector_fine_tunes_on_york_urban_photos() {
         serde_json::from_str(&std::fs::read_to_string(run.join("metrics.json")).unwrap()).unwrap();
     assert_eq!(metrics["images"], 3);
     assert_eq!(metrics["ground_truths"].as_u64().unwrap() as usize, test_half.annotations.len());
+    // The checkpoint keeps the choice, so inference preprocesses the same way.
+    let kept = infer::checkpoint::read_config(&run.join("checkpoint")).unwrap();
+    assert_eq!(kept.preprocess.adaptive_canny, Some(Default::default()));
 }

@@ -41,7 +41,9 @@ fn an_interrupted_run_resumes_to_the_same_losses() {
 fn resume_refuses_flags_that_would_change_the_run() {
     let dir = tempfile::tempdir().unwrap();
     let run = dir.path().to_str().unwrap();
-    for flag in [&["--epochs", "5"][..], &["--lr", "0.1"], &["--batch-size", "2"], &["--seed", "3"]] {
+    for flag in
+        [&["--epochs", "5"][..], &["--lr", "0.1"], &["--batch-size", "2"], &["--seed", "3"], &["--adaptive-canny"]]
+    {
         let out = std::process::Command::new(env!("CARGO_BIN_EXE_train"))
             .args(["--resume", run])
             .args(flag)

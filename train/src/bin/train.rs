@@ -26,7 +26,7 @@ struct Args {
     /// refused: a resumed run ends as the uninterrupted one would).
     #[arg(long, conflicts_with_all = [
         "backbone", "data", "out", "epochs", "batch_size", "optimizer", "lr", "seed", "width", "no_augment",
-        "backend", "hidden", "grid_head", "pretrained", "pretrained_input", "pretrained_prune", "freeze", "no_cache",
+        "adaptive_canny", "backend", "hidden", "grid_head", "pretrained", "pretrained_input", "pretrained_prune", "freeze", "no_cache",
     ])]
     resume: Option<PathBuf>,
     /// Epochs (default: 24 for faster-rcnn and vgg16, 40 for alexnet).
@@ -48,6 +48,12 @@ struct Args {
     /// Turn off the random left-right flips.
     #[arg(long)]
     no_augment: bool,
+    /// Canny thresholds from each image's own gradients (a quantile of its
+    /// gradient magnitudes, calibrated to match the fixed 15/40 on rendered
+    /// rooms) instead of the paper's fixed ones; the checkpoint keeps the
+    /// choice, so inference preprocesses the same way.
+    #[arg(long)]
+    adaptive_canny: bool,
     #[arg(long, value_enum, default_value_t)]
     backend: ComputeBackend,
     /// Width of the fully connected layers (default: 4096 x width^2, at least 64).
@@ -106,6 +112,9 @@ fn run_main() -> Result<()> {
             c.optimizer = args.optimizer;
             c.seed = args.seed;
             c.augment = !args.no_augment;
+            if args.adaptive_canny {
+                c.detector.preprocess.adaptive_canny = Some(Default::default());
+            }
             c.backend = args.backend;
             if let Some(h) = args.hidden {
                 c.detector.hidden = h;
