@@ -83,8 +83,8 @@ pub struct CocoHalves {
 
 /// Splits `photos` (photo, label file; as `labelled_photos` lists them)
 /// into a training and a test half, every `test_every`-th photo to the test
-/// half, with a `box_size` square box around every point, clipped to the
-/// photo. Photos are named by absolute path: they need not be copied.
+/// half (1 or 0: every photo), with a `box_size` square box around every
+/// point, clipped to the photo. Photos are named by absolute path: they need not be copied.
 pub fn coco_halves(photos: &[(PathBuf, PathBuf)], test_every: usize, box_size: f32) -> Result<CocoHalves> {
     let mut halves = [CocoDataset::default(), CocoDataset::default()];
     for half in &mut halves {
