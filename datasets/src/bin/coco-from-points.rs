@@ -53,10 +53,13 @@ fn main() -> Result<()> {
     let split = coco_halves(&photos, args.test_every as usize, args.box_size)?;
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let [train, test] = &split.halves;
-    for (name, half) in [("train.json", train), ("test.json", test)] {
-        let path = args.out.join(name);
-        half.validate(&path)?;
-        write_coco(&path, half)?;
+    let files = [(args.out.join("train.json"), train), (args.out.join("test.json"), test)];
+    // Both checked before either is written: no half-written pair.
+    for (path, half) in &files {
+        half.validate(path)?;
+    }
+    for (path, half) in &files {
+        write_coco(path, half)?;
     }
     let report = |half: &CocoDataset| format!("{} photos, {} points", half.images.len(), half.annotations.len());
     println!("train.json: {}; test.json: {}", report(train), report(test));
