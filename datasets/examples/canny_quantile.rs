@@ -1,5 +1,5 @@
 //! Where a fixed Canny high threshold sits in each image's own gradient
-//! magnitudes (the preprocessing's blur and Sobel, at the network size):
+//! magnitudes (the preprocessing's grayscale resize, blur and Sobel):
 //! the share of pixels below it, over a COCO set's images. Calibrates
 //! `AdaptiveCanny`'s quantile so that on rendered rooms it matches the fixed
 //! thresholds, while it follows the contrast of other images.
@@ -9,10 +9,8 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
-use datasets::preprocess::PreprocessConfig;
-use image::imageops;
-use imageproc::filter::gaussian_blur_f32;
-use imageproc::gradients::{horizontal_sobel, vertical_sobel};
+use datasets::canny::gradient_magnitudes;
+use datasets::preprocess::{PreprocessConfig, network_gray};
 
 fn main() -> Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -21,18 +19,15 @@ fn main() -> Result<()> {
     };
     let high: f32 = high.parse().context("CANNY_HIGH")?;
     let set = PathBuf::from(set);
-    let size = PreprocessConfig::default().size;
+    let config = PreprocessConfig::default();
     let coco = datasets::formats::read_coco(&set)?;
     let root = set.parent().unwrap_or(std::path::Path::new("."));
     let mut shares = Vec::new();
     for entry in &coco.images {
-        let image = datasets::atomic::read_image(&root.join(&entry.file_name))?.to_luma8();
-        let small = imageops::resize(&image, size, size, imageops::FilterType::Triangle);
-        let blurred = gaussian_blur_f32(&small, 1.4);
-        let (gx, gy) = (horizontal_sobel(&blurred), vertical_sobel(&blurred));
-        let below =
-            gx.as_raw().iter().zip(gy.as_raw()).filter(|&(&x, &y)| f32::from(x).hypot(f32::from(y)) < high).count();
-        shares.push(below as f64 / gx.as_raw().len() as f64);
+        let image = datasets::atomic::read_image(&root.join(&entry.file_name))?;
+        let magnitudes = gradient_magnitudes(&network_gray(&image, &config));
+        let below = magnitudes.iter().filter(|&&m| m < high).count();
+        shares.push(below as f64 / magnitudes.len() as f64);
     }
     shares.sort_by(f64::total_cmp);
     let at = |q: f64| shares[((q * (shares.len() - 1) as f64).round() as usize).min(shares.len() - 1)];

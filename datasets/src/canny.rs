@@ -24,18 +24,24 @@ pub fn canny(image: &GrayImage, low: f32, high: f32) -> GrayImage {
 /// Returns the edges and the two thresholds used.
 pub fn canny_adaptive(image: &GrayImage, high_quantile: f32, low_ratio: f32) -> (GrayImage, [f32; 2]) {
     let gradients = Gradients::of(image);
-    let mut sorted = gradients.magnitude.clone();
-    let high = if sorted.is_empty() {
+    let mut magnitudes = gradients.magnitude.clone();
+    let high = if magnitudes.is_empty() {
         0.0
     } else {
-        let index = ((high_quantile * sorted.len() as f32) as usize).min(sorted.len() - 1);
-        *sorted.select_nth_unstable_by(index, f32::total_cmp).1
+        let index = ((high_quantile * magnitudes.len() as f32) as usize).min(magnitudes.len() - 1);
+        *magnitudes.select_nth_unstable_by(index, f32::total_cmp).1
     };
     // A flat image has no gradient at all: a zero threshold would make
     // every pixel an edge.
     let high = high.max(f32::MIN_POSITIVE);
     let low = low_ratio * high;
     (edges(&gradients, low, high), [low, high])
+}
+
+/// The Sobel gradient magnitude of every pixel of the blurred image, row by
+/// row: what the thresholds of `canny` and `canny_adaptive` compare.
+pub fn gradient_magnitudes(image: &GrayImage) -> Vec<f32> {
+    Gradients::of(image).magnitude
 }
 
 /// Sobel gradients of the image blurred with sigma 1.4, and their magnitude.

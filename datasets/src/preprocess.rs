@@ -84,12 +84,16 @@ impl PreprocessConfig {
 /// Grayscale, resize and Canny: the network's input image (edges 255, else 0).
 /// The config must be valid (see [`PreprocessConfig::validate`]).
 pub fn preprocess(image: &DynamicImage, config: &PreprocessConfig) -> GrayImage {
-    let gray = image.to_luma8();
-    let small = imageops::resize(&gray, config.size, config.size, imageops::FilterType::Triangle);
+    let small = network_gray(image, config);
     match &config.adaptive_canny {
         None => crate::canny::canny(&small, config.canny_low, config.canny_high),
         Some(a) => crate::canny::canny_adaptive(&small, a.high_quantile, a.low_ratio).0,
     }
+}
+
+/// The grayscale image at the network size, before Canny.
+pub fn network_gray(image: &DynamicImage, config: &PreprocessConfig) -> GrayImage {
+    imageops::resize(&image.to_luma8(), config.size, config.size, imageops::FilterType::Triangle)
 }
 
 /// Scale factors between an image and the square network input.
