@@ -76,31 +76,64 @@ impl NormalEstimator {
     }
 }
 
-/// The normals of `points[first..first + out.len()]`, compiled for AVX2
-/// and FMA where the CPU has them: one binary for every x86-64 CPU, and
-/// the same results either way (Rust never fuses a multiply and an add on
-/// its own).
+/// The normals of `points[first..first + out.len()]`, compiled for AVX-512,
+/// or AVX2 and FMA, where the CPU has them: one binary for every x86-64
+/// CPU, and the same results either way (Rust never fuses a multiply and an
+/// add on its own).
 fn fill(points: &[Point3<f32>], grid: &ScanGrid, k: usize, first: usize, out: &mut [PointNormal]) {
+    let scratch = NeighbourScratch::default();
+    #[cfg(target_arch = "x86_64")]
+    if scratch.is_avx512() {
+        // SAFETY: the scratch searches with AVX-512F only where the CPU has it.
+        unsafe { fill_avx512(points, grid, k, first, out, scratch) };
+        return;
+    }
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
         // SAFETY: the CPU has both features, checked just above.
-        unsafe { fill_avx2_fma(points, grid, k, first, out) };
+        unsafe { fill_avx2_fma(points, grid, k, first, out, scratch) };
         return;
     }
-    fill_portable(points, grid, k, first, out);
+    fill_portable(points, grid, k, first, out, scratch);
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx2,fma")]
+fn fill_avx512(
+    points: &[Point3<f32>],
+    grid: &ScanGrid,
+    k: usize,
+    first: usize,
+    out: &mut [PointNormal],
+    scratch: NeighbourScratch,
+) {
+    fill_portable(points, grid, k, first, out, scratch);
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-fn fill_avx2_fma(points: &[Point3<f32>], grid: &ScanGrid, k: usize, first: usize, out: &mut [PointNormal]) {
-    fill_portable(points, grid, k, first, out);
+fn fill_avx2_fma(
+    points: &[Point3<f32>],
+    grid: &ScanGrid,
+    k: usize,
+    first: usize,
+    out: &mut [PointNormal],
+    scratch: NeighbourScratch,
+) {
+    fill_portable(points, grid, k, first, out, scratch);
 }
 
 #[inline(always)]
-fn fill_portable(points: &[Point3<f32>], grid: &ScanGrid, k: usize, first: usize, out: &mut [PointNormal]) {
+fn fill_portable(
+    points: &[Point3<f32>],
+    grid: &ScanGrid,
+    k: usize,
+    first: usize,
+    out: &mut [PointNormal],
+    mut scratch: NeighbourScratch,
+) {
     let sensor = grid.sensor();
     let mut hint = f64::INFINITY;
-    let mut scratch = NeighbourScratch::default();
     for (i, normal_out) in (first..).zip(out.iter_mut()) {
         let neighbours = grid.nearest(i, k, &mut hint, &mut scratch);
         // One pass over the neighbours, relative to the point itself (small
@@ -257,7 +290,7 @@ mod tests {
         // The code compiled for any x86-64 CPU gives the very same normals.
         let mut portable = normals.clone();
         for (c, out) in portable.chunks_mut(CHUNK).enumerate() {
-            fill_portable(&points, &grid, k, c * CHUNK, out);
+            fill_portable(&points, &grid, k, c * CHUNK, out, NeighbourScratch::portable());
         }
         assert!(portable == normals, "the portable build differs");
         // The walls' normals point into the room: a wall at x = 2.5 faces -x.

@@ -20,7 +20,8 @@ use rayon::prelude::*;
 /// Added to every angular bound, far above the rounding of the angles.
 const ANGLE_MARGIN: f64 = 1e-6;
 
-/// Buffers of one searching thread, reused from search to search.
+/// Buffers of one searching thread, reused from search to search, and the
+/// code that measures its distances.
 #[derive(Debug)]
 pub struct NeighbourScratch {
     runs: Vec<[usize; 2]>,
@@ -29,11 +30,31 @@ pub struct NeighbourScratch {
     /// values do for values >= 0) above its place in the cell order.
     candidates: Vec<u64>,
     found: Vec<u32>,
+    /// True only where the CPU has AVX-512F (checked when made).
+    avx512: bool,
 }
 
 impl Default for NeighbourScratch {
+    /// Searches with the widest vectors the CPU has.
     fn default() -> Self {
-        Self { runs: Vec::new(), distances: [0.0; 64], candidates: Vec::new(), found: Vec::new() }
+        #[cfg(target_arch = "x86_64")]
+        let avx512 = std::arch::is_x86_feature_detected!("avx512f");
+        #[cfg(not(target_arch = "x86_64"))]
+        let avx512 = false;
+        Self { avx512, ..Self::portable() }
+    }
+}
+
+impl NeighbourScratch {
+    /// Searches with code for any CPU: the same neighbours, in the same
+    /// order, as the default.
+    pub fn portable() -> Self {
+        Self { runs: Vec::new(), distances: [0.0; 64], candidates: Vec::new(), found: Vec::new(), avx512: false }
+    }
+
+    /// Whether searches use AVX-512.
+    pub fn is_avx512(&self) -> bool {
+        self.avx512
     }
 }
 
@@ -261,7 +282,7 @@ impl ScanGrid {
         let at = self.directions[i];
         let p = self.point(self.slot[i]);
         let k = k.min(self.len());
-        let NeighbourScratch { runs, distances, candidates, found } = scratch;
+        let NeighbourScratch { runs, distances, candidates, found, avx512 } = scratch;
         found.clear();
         if k == 0 {
             return found;
@@ -275,6 +296,12 @@ impl ScanGrid {
             candidates.clear();
             self.runs(&window, runs);
             for &[a, b] in runs.iter() {
+                #[cfg(target_arch = "x86_64")]
+                if *avx512 {
+                    // SAFETY: `avx512` is only ever true where the CPU has AVX-512F.
+                    unsafe { self.push_within_avx512(a, b, p, r2, candidates) };
+                    continue;
+                }
                 candidates.reserve(b - a);
                 for start in (a..b).step_by(64) {
                     let end = (start + 64).min(b);
@@ -317,6 +344,52 @@ impl ScanGrid {
             found.extend(candidates[..k].iter().map(|&c| c as u32));
             return found;
         }
+    }
+
+    /// The slots `a..b` within `sqrt(r2)` of `p` appended to `candidates`
+    /// as keys, 16 at a time: the portable loop's keys, in its order (the
+    /// same arithmetic, without fused multiply-adds).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    #[inline]
+    fn push_within_avx512(&self, a: usize, b: usize, p: [f32; 3], r2: f32, candidates: &mut Vec<u64>) {
+        use std::arch::x86_64::*;
+        let (xs, ys, zs) = (&self.xs[a..b], &self.ys[a..b], &self.zs[a..b]);
+        // Each step stores 16 keys, however few are inside.
+        candidates.reserve(b - a + 16);
+        let (px, py, pz, r2) = (_mm512_set1_ps(p[0]), _mm512_set1_ps(p[1]), _mm512_set1_ps(p[2]), _mm512_set1_ps(r2));
+        let lane = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+        // Slot and distance bits side by side: the keys of lanes 0-7, then 8-15.
+        let low = _mm512_setr_epi32(0, 16, 1, 17, 2, 18, 3, 19, 4, 20, 5, 21, 6, 22, 7, 23);
+        let high = _mm512_setr_epi32(8, 24, 9, 25, 10, 26, 11, 27, 12, 28, 13, 29, 14, 30, 15, 31);
+        let mut len = candidates.len();
+        let out = candidates.as_mut_ptr();
+        for start in (0..b - a).step_by(16) {
+            let n = (b - a - start).min(16);
+            let lanes: __mmask16 = if n == 16 { u16::MAX } else { (1 << n) - 1 };
+            // SAFETY: the masked loads read lanes `start..start + n`, inside
+            // the slices; the two stores write keys `len..len + 16`, inside
+            // the capacity reserved above (`len` grows by at most `n`).
+            unsafe {
+                let dx = _mm512_sub_ps(_mm512_maskz_loadu_ps(lanes, xs.as_ptr().add(start)), px);
+                let dy = _mm512_sub_ps(_mm512_maskz_loadu_ps(lanes, ys.as_ptr().add(start)), py);
+                let dz = _mm512_sub_ps(_mm512_maskz_loadu_ps(lanes, zs.as_ptr().add(start)), pz);
+                let d2 =
+                    _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(dx, dx), _mm512_mul_ps(dy, dy)), _mm512_mul_ps(dz, dz));
+                let inside = _mm512_mask_cmp_ps_mask::<_CMP_LE_OQ>(lanes, d2, r2);
+                let slots = _mm512_add_epi32(_mm512_set1_epi32((a + start) as i32), lane);
+                let bits = _mm512_castps_si512(d2);
+                let [first, second] = [inside as u8, (inside >> 8) as u8];
+                let keys = _mm512_maskz_compress_epi64(first, _mm512_permutex2var_epi32(slots, low, bits));
+                _mm512_storeu_si512(out.add(len).cast(), keys);
+                len += first.count_ones() as usize;
+                let keys = _mm512_maskz_compress_epi64(second, _mm512_permutex2var_epi32(slots, high, bits));
+                _mm512_storeu_si512(out.add(len).cast(), keys);
+                len += second.count_ones() as usize;
+            }
+        }
+        // SAFETY: keys up to `len` were written above.
+        unsafe { candidates.set_len(len) };
     }
 
     /// Input indices of every point within `radius` of `x` (unordered).
@@ -414,15 +487,16 @@ mod tests {
         let sensor = Vec3::new(1.0, -2.0, 0.5);
         for cloud in clouds(&sensor) {
             let grid = ScanGrid::new(&cloud, &sensor);
-            let mut scratch = NeighbourScratch::default();
+            // The widest vectors this CPU has, and code for any CPU.
+            let (mut scratch, mut portable) = (NeighbourScratch::default(), NeighbourScratch::portable());
             for k in [1, 25, 40] {
-                let mut hint = f64::INFINITY;
+                let (mut hint, mut portable_hint) = (f64::INFINITY, f64::INFINITY);
                 for (i, p) in cloud.iter().enumerate() {
-                    let mut found: Vec<u32> = grid
-                        .nearest(i, k, &mut hint, &mut scratch)
-                        .iter()
-                        .map(|&s| grid.input_index(s) as u32)
-                        .collect();
+                    let slots = grid.nearest(i, k, &mut hint, &mut scratch).to_vec();
+                    let portable_slots = grid.nearest(i, k, &mut portable_hint, &mut portable);
+                    // The same neighbours in the same order: the same sums.
+                    assert_eq!(slots, portable_slots, "point {i}, k {k}: the kernels differ");
+                    let mut found: Vec<u32> = slots.iter().map(|&s| grid.input_index(s) as u32).collect();
                     found.sort_unstable();
                     assert_eq!(found, brute_nearest(&cloud, p, k), "point {i} at {p:?}, k {k}");
                 }

@@ -694,14 +694,16 @@ fn bench(args: &BenchArgs) -> Result<()> {
     );
     for r in &rows {
         let f = |k: &str| r[k].as_f64().unwrap_or(f64::NAN);
+        // Without a checkpoint there is no detector time to show.
+        let detector = r["detector_ms"].as_f64().map_or("-".to_string(), |ms| format!("{ms:.1}ms"));
         println!(
-            "{:<15} {:>8.0} {:>8.1}ms {:>8.1}ms {:>8.1}ms {:>9.1}ms {:>10.1}ms {:>8.1}ms",
+            "{:<15} {:>8.0} {:>8.1}ms {:>8.1}ms {:>8.1}ms {:>11} {:>10.1}ms {:>8.1}ms",
             r["scan"].as_str().unwrap_or(""),
             f("points"),
             f("normals_ms"),
             f("planes_ms"),
             f("corners_ms"),
-            f("detector_ms"),
+            detector,
             f("sequential_ms"),
             f("total_ms")
         );
