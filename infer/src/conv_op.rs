@@ -12,7 +12,7 @@ use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
 use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::autodiff::{Autodiff, NodeId};
-use burn::backend::ops::{ConvOptions, FloatTensorOps, ModuleOps};
+use burn::backend::ops::{ActivationOps, ConvOptions, FloatTensorOps, ModuleOps};
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{Backend, Dispatch, Flex, TensorMetadata, backend_extension};
 use burn::nn::PaddingConfig2d;
@@ -45,6 +45,30 @@ pub fn gemm_conv2d(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
     ))
 }
 
+/// `relu(conv.forward(x))`, the bias and ReLU fused into the GEMM
+/// kernels' forward pass (and the ReLU's mask into their backward pass)
+/// unless the project's kernels are turned off.
+pub fn conv2d_relu(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
+    if cpu_kernels::enabled() { gemm_conv2d_relu(conv, x) } else { burn::tensor::activation::relu(conv.forward(x)) }
+}
+
+/// `relu(conv.forward(x))` through the fused GEMM kernels where they apply,
+/// Burn's convolution and ReLU elsewhere.
+pub fn gemm_conv2d_relu(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
+    let burn_path = |x: Tensor<4>| burn::tensor::activation::relu(conv.forward(x));
+    let Some(bias) = conv.bias.as_ref() else { return burn_path(x) };
+    if !cpu_kernels::is_flex(&x.device()) || x.dtype() != DType::F32 {
+        return burn_path(x);
+    }
+    let Some(options) = conv_options(conv) else { return burn_path(x) };
+    Tensor::from_dispatch(<Dispatch as GemmConvBackend>::conv2d_relu_gemm(
+        x.into_dispatch(),
+        conv.weight.val().into_dispatch(),
+        bias.val().into_dispatch(),
+        options,
+    ))
+}
+
 /// The options of `conv` (its padding resolved); `None` for `Same` padding,
 /// which depends on the input size and keeps Burn's path.
 pub fn conv_options(conv: &Conv2d) -> Option<ConvOptions<2>> {
@@ -60,6 +84,14 @@ pub fn conv_options(conv: &Conv2d) -> Option<ConvOptions<2>> {
 pub trait GemmConvBackend: Backend {
     /// A biased 2-D convolution (Burn's layouts and options).
     fn conv2d_gemm(
+        x: FloatTensor<Self>,
+        weight: FloatTensor<Self>,
+        bias: FloatTensor<Self>,
+        options: ConvOptions<2>,
+    ) -> FloatTensor<Self>;
+
+    /// `relu` of `conv2d_gemm`, in one pass.
+    fn conv2d_relu_gemm(
         x: FloatTensor<Self>,
         weight: FloatTensor<Self>,
         bias: FloatTensor<Self>,
@@ -91,13 +123,50 @@ pub fn flex_forward(
     bias: FloatTensor<Flex>,
     options: ConvOptions<2>,
 ) -> FloatTensor<Flex> {
+    forward_then(x, weight, bias, options, false)
+}
+
+/// `relu` of `flex_forward`.
+pub fn flex_forward_relu(
+    x: FloatTensor<Flex>,
+    weight: FloatTensor<Flex>,
+    bias: FloatTensor<Flex>,
+    options: ConvOptions<2>,
+) -> FloatTensor<Flex> {
+    forward_then(x, weight, bias, options, true)
+}
+
+fn forward_then(
+    x: FloatTensor<Flex>,
+    weight: FloatTensor<Flex>,
+    bias: FloatTensor<Flex>,
+    options: ConvOptions<2>,
+    relu: bool,
+) -> FloatTensor<Flex> {
     let Some(geo) = geometry(&x, &weight, &options).filter(|_| bias.dtype() == DType::F32) else {
-        return Flex::conv2d(x, weight, Some(bias), options);
+        let out = Flex::conv2d(x, weight, Some(bias), options);
+        return if relu { Flex::relu(out) } else { out };
     };
-    let out = with_values(&x, |x| {
-        with_values(&weight, |w| with_values(&bias, |b| conv_kernels::forward(x, w, Some(b), &geo)))
-    });
+    let kernel = if relu { conv_kernels::forward_relu } else { conv_kernels::forward };
+    let out = with_values(&x, |x| with_values(&weight, |w| with_values(&bias, |b| kernel(x, w, Some(b), &geo))));
     flex_tensor(out, [geo.batch, geo.out_channels, geo.out_hw[0], geo.out_hw[1]])
+}
+
+/// The ReLU's backward pass from its output; in place where `grad` is a
+/// contiguous f32 tensor of its own.
+fn flex_relu_grad(out: &FloatTensor<Flex>, mut grad: FloatTensor<Flex>) -> FloatTensor<Flex> {
+    if out.dtype() != DType::F32 || grad.dtype() != DType::F32 || out.shape() != grad.shape() {
+        return Flex::relu_backward(out.clone(), grad);
+    }
+    let span = grad.layout().contiguous_offsets();
+    if let (Some((start, end)), true) = (span, grad.is_unique()) {
+        let values = &mut grad.storage_mut::<f32>()[start..end];
+        with_values(out, |o| conv_kernels::relu_grad(o, values));
+        return grad;
+    }
+    let mut masked = with_values(&grad, <[f32]>::to_vec);
+    with_values(out, |o| conv_kernels::relu_grad(o, &mut masked));
+    flex_tensor(masked, dims4(&grad))
 }
 
 /// The gradient with respect to the input.
@@ -153,6 +222,15 @@ impl GemmConvBackend for Flex {
     ) -> FloatTensor<Self> {
         flex_forward(x, weight, bias, options)
     }
+
+    fn conv2d_relu_gemm(
+        x: FloatTensor<Self>,
+        weight: FloatTensor<Self>,
+        bias: FloatTensor<Self>,
+        options: ConvOptions<2>,
+    ) -> FloatTensor<Self> {
+        flex_forward_relu(x, weight, bias, options)
+    }
 }
 
 /// The backward step: input, weight and bias gradients from `conv_kernels`.
@@ -163,20 +241,50 @@ impl Backward<Flex, 3> for Conv2dGemmBackward {
     type State = (NodeId, NodeId, ConvOptions<2>);
 
     fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, checkpointer: &mut Checkpointer) {
-        let [node_x, node_weight, node_bias] = ops.parents;
         let grad = grads.consume::<Flex>(&ops.node);
         let (x_state, weight_state, options) = ops.state;
         let x = checkpointer.retrieve_node_output::<FloatTensor<Flex>>(x_state);
         let weight = checkpointer.retrieve_node_output::<FloatTensor<Flex>>(weight_state);
-        if let Some(node) = node_x {
-            grads.register::<Flex>(node.id, flex_input_grad(&x, &weight, &grad, options.clone()));
-        }
-        if let Some(node) = node_weight {
-            grads.register::<Flex>(node.id, flex_weight_grad(&x, &weight, &grad, options));
-        }
-        if let Some(node) = node_bias {
-            grads.register::<Flex>(node.id, flex_bias_grad(&grad));
-        }
+        register_conv_grads(ops.parents.map(|p| p.map(|node| node.id)), &x, &weight, &grad, options, grads);
+    }
+}
+
+/// The input, weight and bias gradients of the parents that want one.
+fn register_conv_grads(
+    [node_x, node_weight, node_bias]: [Option<NodeId>; 3],
+    x: &FloatTensor<Flex>,
+    weight: &FloatTensor<Flex>,
+    grad: &FloatTensor<Flex>,
+    options: ConvOptions<2>,
+    grads: &mut Gradients,
+) {
+    if let Some(id) = node_x {
+        grads.register::<Flex>(id, flex_input_grad(x, weight, grad, options.clone()));
+    }
+    if let Some(id) = node_weight {
+        grads.register::<Flex>(id, flex_weight_grad(x, weight, grad, options));
+    }
+    if let Some(id) = node_bias {
+        grads.register::<Flex>(id, flex_bias_grad(grad));
+    }
+}
+
+/// The fused ReLU convolution's backward step: the ReLU's mask from the
+/// output it kept, then the convolution's gradients.
+#[derive(Debug)]
+struct Conv2dReluGemmBackward;
+
+impl Backward<Flex, 3> for Conv2dReluGemmBackward {
+    type State = (NodeId, NodeId, ConvOptions<2>, FloatTensor<Flex>);
+
+    fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, checkpointer: &mut Checkpointer) {
+        let grad = grads.consume::<Flex>(&ops.node);
+        let (x_state, weight_state, options, out) = ops.state;
+        let x = checkpointer.retrieve_node_output::<FloatTensor<Flex>>(x_state);
+        let weight = checkpointer.retrieve_node_output::<FloatTensor<Flex>>(weight_state);
+        let grad = flex_relu_grad(&out, grad);
+        drop(out);
+        register_conv_grads(ops.parents.map(|p| p.map(|node| node.id)), &x, &weight, &grad, options, grads);
     }
 }
 
@@ -200,6 +308,34 @@ impl<C: CheckpointStrategy> GemmConvBackend for Autodiff<Flex, C> {
                 prep.finish((x_state, weight_state, options), out)
             }
             OpsKind::UnTracked(prep) => prep.finish(Flex::conv2d_gemm(
+                x.into_primitive(),
+                weight.into_primitive(),
+                bias.into_primitive(),
+                options,
+            )),
+        }
+    }
+
+    fn conv2d_relu_gemm(
+        x: FloatTensor<Self>,
+        weight: FloatTensor<Self>,
+        bias: FloatTensor<Self>,
+        options: ConvOptions<2>,
+    ) -> FloatTensor<Self> {
+        match Conv2dReluGemmBackward.prepare::<C>([x.node(), weight.node(), bias.node()]).compute_bound().stateful() {
+            OpsKind::Tracked(mut prep) => {
+                let x_state = prep.checkpoint(&x);
+                let weight_state = prep.checkpoint(&weight);
+                let out = Flex::conv2d_relu_gemm(
+                    x.into_primitive(),
+                    weight.into_primitive(),
+                    bias.into_primitive(),
+                    options.clone(),
+                );
+                // The output is what the ReLU's backward pass masks with.
+                prep.finish((x_state, weight_state, options, out.clone()), out)
+            }
+            OpsKind::UnTracked(prep) => prep.finish(Flex::conv2d_relu_gemm(
                 x.into_primitive(),
                 weight.into_primitive(),
                 bias.into_primitive(),

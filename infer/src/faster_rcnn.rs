@@ -11,7 +11,7 @@ use burn::tensor::activation::softmax;
 
 use crate::anchors::AnchorConfig;
 use crate::boxes::{BBox, BoxCoder, batched_nms, nms, remove_small};
-use crate::conv_op::conv2d;
+use crate::conv_op::{conv2d, conv2d_relu};
 use crate::roi_align::roi_align;
 use crate::trunk::{Trunk, TrunkConfig};
 
@@ -111,7 +111,7 @@ impl RpnHead {
     pub fn forward(&self, features: Tensor<4>) -> RpnOutput {
         let [b, _, h, w] = features.dims();
         let [a, ..] = self.cls.weight.dims();
-        let t = self.act.forward(conv2d(&self.conv, features));
+        let t = conv2d_relu(&self.conv, features);
         // [B, A, H, W] -> [B, H, W, A] -> [B, H*W*A]
         let objectness = conv2d(&self.cls, t.clone()).permute([0, 2, 3, 1]).reshape([b, h * w * a]);
         // [B, A*4, H, W] -> [B, A, 4, H, W] -> [B, H, W, A, 4] -> [B, H*W*A, 4]

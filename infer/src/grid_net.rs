@@ -16,7 +16,7 @@ use burn::nn::{Dropout, DropoutConfig, Initializer, Linear, LinearConfig, Relu};
 use burn::prelude::*;
 
 use crate::config::GridHead;
-use crate::conv_op::conv2d;
+use crate::conv_op::{conv2d, conv2d_relu};
 use crate::trunk::{Architecture, Trunk, TrunkConfig, replace_value};
 
 /// Values per grid cell: presence, offset x, offset y, log width, log height.
@@ -232,7 +232,7 @@ impl FcGridHead {
 impl ConvGridHead {
     /// `features`: `[B, C, S, S]` -> `[B, S, S, 5]`.
     pub fn forward(&self, features: Tensor<4>) -> Tensor<4> {
-        let x = self.act.forward(conv2d(&self.hidden, features));
+        let x = conv2d_relu(&self.hidden, features);
         conv2d(&self.cells, x).permute([0, 2, 3, 1])
     }
 }

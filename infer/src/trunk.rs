@@ -12,7 +12,7 @@ use burn::nn::{Initializer, PaddingConfig2d, Relu};
 use burn::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::conv_op::conv2d;
+use crate::conv_op::conv2d_relu;
 use crate::max_pool_native::max_pool2d;
 
 /// Which of torchvision's two trunks.
@@ -119,7 +119,7 @@ impl Trunk {
     pub fn forward(&self, mut x: Tensor<4>, layers: Range<usize>, last_pool: bool) -> Tensor<4> {
         let last = self.features.len() - 1;
         for i in layers {
-            x = self.act.forward(conv2d(&self.features[i], x));
+            x = conv2d_relu(&self.features[i], x);
             let pool_after = match self.architecture {
                 Architecture::Vgg16 => VGG16_POOL_AFTER.contains(&i),
                 Architecture::Alexnet => matches!(i, 0 | 1 | 4),

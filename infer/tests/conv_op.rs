@@ -6,7 +6,7 @@ use burn::module::Param;
 use burn::nn::PaddingConfig2d;
 use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::prelude::*;
-use infer::conv_op::gemm_conv2d;
+use infer::conv_op::{gemm_conv2d, gemm_conv2d_relu};
 use rand::rngs::ChaCha8Rng;
 use rand::{RngExt, SeedableRng};
 
@@ -81,15 +81,24 @@ fn uniform<const D: usize>(shape: [usize; D], rng: &mut ChaCha8Rng, device: &Dev
 }
 
 /// Output, input gradient, weight gradient, bias gradient of
-/// `sum(conv(x) * r)`.
+/// `sum(conv(x) * r)`, or of `sum(relu(conv(x)) * r)`.
 fn run(case: &Case, gemm: bool, seed: u64) -> [Vec<f32>; 4] {
+    run_with(case, gemm, false, seed)
+}
+
+fn run_with(case: &Case, gemm: bool, relu: bool, seed: u64) -> [Vec<f32>; 4] {
     let device = Device::flex().autodiff();
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut conv = case.conv(&device);
     conv.weight = Param::from_tensor(uniform(conv.weight.val().dims(), &mut rng, &device));
     conv.bias = Some(Param::from_tensor(uniform([case.channels[1]], &mut rng, &device)));
     let x = uniform([case.batch, case.channels[0], case.size[0], case.size[1]], &mut rng, &device).require_grad();
-    let y = if gemm { gemm_conv2d(&conv, x.clone()) } else { conv.forward(x.clone()) };
+    let y = match (gemm, relu) {
+        (true, false) => gemm_conv2d(&conv, x.clone()),
+        (true, true) => gemm_conv2d_relu(&conv, x.clone()),
+        (false, false) => conv.forward(x.clone()),
+        (false, true) => burn::tensor::activation::relu(conv.forward(x.clone())),
+    };
     let r = uniform(y.dims(), &mut rng, &device);
     let grads = (y.clone() * r).sum().backward();
     [
@@ -119,6 +128,27 @@ fn forward_and_all_gradients_match_burns_on_random_shapes() {
         assert_close("weight gradient", case, dw, dw_ref);
         assert_close("bias gradient", case, db, db_ref);
     }
+}
+
+#[test]
+fn the_fused_relu_convolution_matches_burns_conv_then_relu() {
+    let mut rng = ChaCha8Rng::seed_from_u64(2027);
+    let mut cut = 0;
+    for i in 0..16 {
+        let case = Case::random(&mut rng);
+        let seed = 300 + i as u64;
+        let [y, dx, dw, db] = run_with(&case, true, true, seed);
+        let [y_ref, dx_ref, dw_ref, db_ref] = run_with(&case, false, true, seed);
+        // Inputs and weights in [-1, 1): about half the outputs are cut.
+        let zeros = y_ref.iter().filter(|&&v| v == 0.0).count();
+        cut += usize::from(zeros > 0 && zeros < y_ref.len());
+        assert_close("output", &case, y, y_ref);
+        assert_close("input gradient", &case, dx, dx_ref);
+        assert_close("weight gradient", &case, dw, dw_ref);
+        assert_close("bias gradient", &case, db, db_ref);
+    }
+    // The ReLU both passes and cuts in most cases, so its mask is tested.
+    assert!(cut >= 12, "only {cut} of 16 cases had outputs on both sides of zero");
 }
 
 #[test]
