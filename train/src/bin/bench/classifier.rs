@@ -71,9 +71,10 @@ impl Classifier {
 pub struct StepFigures {
     model: Model,
     batch: usize,
-    burn_images_per_s: f64,
+    /// `None` where Burn's kernels were not timed.
+    burn_images_per_s: Option<f64>,
     gemm_images_per_s: f64,
-    burn_cores: f64,
+    burn_cores: Option<f64>,
     gemm_cores: f64,
     /// Seconds of the median step with the project's kernels: forward + loss,
     /// backward, optimizer.
@@ -140,7 +141,7 @@ struct Timing {
     phases_s: [f64; 3],
 }
 
-pub fn run(models: &[Model], batch: usize, warmup: usize, steps: usize, json: bool) -> Result<()> {
+pub fn run(models: &[Model], batch: usize, warmup: usize, steps: usize, with_burn: bool, json: bool) -> Result<()> {
     if !json {
         println!("Training step, batch {batch} of 1x224x224, median of {steps} steps after {warmup} warm-up\n");
         println!(
@@ -149,27 +150,28 @@ pub fn run(models: &[Model], batch: usize, warmup: usize, steps: usize, json: bo
         println!("|---|---|---|---|---|---|");
     }
     for &model in models {
-        let burn = time_steps(model, batch, warmup, steps, false);
+        let burn = with_burn.then(|| time_steps(model, batch, warmup, steps, false));
         let gemm = time_steps(model, batch, warmup, steps, true);
         let f = StepFigures {
             model,
             batch,
-            burn_images_per_s: burn.images_per_s,
+            burn_images_per_s: burn.as_ref().map(|b| b.images_per_s),
             gemm_images_per_s: gemm.images_per_s,
-            burn_cores: burn.cores,
+            burn_cores: burn.as_ref().map(|b| b.cores),
             gemm_cores: gemm.cores,
             gemm_phases_s: gemm.phases_s,
         };
         if json {
             println!("{}", serde_json::to_string(&f)?);
         } else {
+            let or_dash = |v: Option<f64>, suffix: &str| v.map_or("-".to_string(), |v| format!("{v:.2}{suffix}"));
             println!(
-                "| {:?} | {:.2} | {:.2} | {:.2}x | {:.2} / {:.2} | {:.2} / {:.2} / {:.2} |",
+                "| {:?} | {} | {:.2} | {} | {} / {:.2} | {:.2} / {:.2} / {:.2} |",
                 f.model,
-                f.burn_images_per_s,
+                or_dash(f.burn_images_per_s, ""),
                 f.gemm_images_per_s,
-                f.gemm_images_per_s / f.burn_images_per_s,
-                f.burn_cores,
+                or_dash(f.burn_images_per_s.map(|b| f.gemm_images_per_s / b), "x"),
+                or_dash(f.burn_cores, ""),
                 f.gemm_cores,
                 f.gemm_phases_s[0],
                 f.gemm_phases_s[1],

@@ -67,6 +67,10 @@ enum Command {
         warmup: usize,
         #[arg(long, default_value_t = 5)]
         steps: usize,
+        /// Time only the project's kernels (Burn's as they come take longer
+        /// than the project's and are the same from build to build).
+        #[arg(long)]
+        project_only: bool,
         /// Print JSON lines instead of a table.
         #[arg(long)]
         json: bool,
@@ -83,11 +87,11 @@ fn run_main() -> Result<()> {
             detectors::run(backend, width, batch, steps, only, json, burn_kernels)
         }
         Command::Conv { reps, json } => conv::run(reps, json),
-        Command::TrainStep { mut models, batch, warmup, steps, json } => {
+        Command::TrainStep { mut models, batch, warmup, steps, project_only, json } => {
             if models.is_empty() {
                 models = vec![classifier::Model::Alexnet, classifier::Model::Vgg16w4, classifier::Model::Vgg16];
             }
-            classifier::run(&models, batch, warmup.max(1), steps.max(1), json)
+            classifier::run(&models, batch, warmup.max(1), steps.max(1), !project_only, json)
         }
     }
 }
