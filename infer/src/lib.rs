@@ -2,6 +2,7 @@
 //! operations, anchors, RoIAlign, the three networks, checkpoints, detection
 //! on an image and evaluation.
 
+pub mod allocator;
 pub mod anchors;
 pub mod backend;
 pub mod boxes;
