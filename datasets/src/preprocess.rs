@@ -28,11 +28,17 @@ pub struct PreprocessConfig {
     /// `canny_high` (off by default: the paper's fixed thresholds).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub adaptive_canny: Option<AdaptiveCanny>,
+    /// A second input channel: the grayscale image the edges were found in
+    /// (off by default: the paper's network sees the edges alone). A binary
+    /// edge map no longer tells a corner where three differently lit planes
+    /// meet from painted lines or thin furniture on one surface.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub gray_channel: bool,
 }
 
 impl Default for PreprocessConfig {
     fn default() -> Self {
-        Self { size: 224, canny_low: 15.0, canny_high: 40.0, adaptive_canny: None }
+        Self { size: 224, canny_low: 15.0, canny_high: 40.0, adaptive_canny: None, gray_channel: false }
     }
 }
 
@@ -56,6 +62,11 @@ impl Default for AdaptiveCanny {
 }
 
 impl PreprocessConfig {
+    /// Channels of the network input.
+    pub fn channels(&self) -> usize {
+        1 + usize::from(self.gray_channel)
+    }
+
     pub fn validate(&self) -> Result<(), InvalidSetting> {
         if self.size < 16 {
             return Err(InvalidSetting::field("size", format!("{} is below 16 pixels", self.size)));
@@ -81,13 +92,51 @@ impl PreprocessConfig {
     }
 }
 
-/// Grayscale, resize and Canny: the network's input image (edges 255, else 0).
+/// Grayscale, resize and Canny: the network's edge image (edges 255, else 0).
 /// The config must be valid (see [`PreprocessConfig::validate`]).
 pub fn preprocess(image: &DynamicImage, config: &PreprocessConfig) -> GrayImage {
+    edges_of(&network_gray(image, config), config)
+}
+
+/// The network's whole input: the edge image, then the grayscale image where
+/// the config asks for it.
+pub fn network_input(image: &DynamicImage, config: &PreprocessConfig) -> NetInput {
     let small = network_gray(image, config);
+    let edges = edges_of(&small, config);
+    NetInput { planes: if config.gray_channel { vec![edges, small] } else { vec![edges] } }
+}
+
+fn edges_of(small: &GrayImage, config: &PreprocessConfig) -> GrayImage {
     match &config.adaptive_canny {
-        None => crate::canny::canny(&small, config.canny_low, config.canny_high),
-        Some(a) => crate::canny::canny_adaptive(&small, a.high_quantile, a.low_ratio).0,
+        None => crate::canny::canny(small, config.canny_low, config.canny_high),
+        Some(a) => crate::canny::canny_adaptive(small, a.high_quantile, a.low_ratio).0,
+    }
+}
+
+/// A preprocessed network input: one square plane per channel, the Canny
+/// edges first.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NetInput {
+    pub planes: Vec<GrayImage>,
+}
+
+impl NetInput {
+    /// The Canny edges (the first plane).
+    pub fn edges(&self) -> &GrayImage {
+        &self.planes[0]
+    }
+
+    /// The same input mirrored left-right.
+    pub fn flip_horizontal(&self) -> Self {
+        Self { planes: self.planes.iter().map(imageops::flip_horizontal).collect() }
+    }
+
+    /// The network's values of plane `channel`'s pixels: the edges as 0 or 1,
+    /// the grayscale image centred on 0 (-0.5 to 0.5), as the edges' zero
+    /// is "nothing there".
+    pub fn values(&self, channel: usize) -> impl Iterator<Item = f32> + '_ {
+        let offset = if channel == 0 { 0.0 } else { 0.5 };
+        self.planes[channel].as_raw().iter().map(move |&v| v as f32 / 255.0 - offset)
     }
 }
 
@@ -159,6 +208,35 @@ mod tests {
         let adaptive = PreprocessConfig { adaptive_canny: Some(AdaptiveCanny::default()), ..Default::default() };
         let text = serde_json::to_string(&adaptive).unwrap();
         assert_eq!(serde_json::from_str::<PreprocessConfig>(&text).unwrap(), adaptive);
+        let gray = PreprocessConfig { gray_channel: true, ..Default::default() };
+        let text = serde_json::to_string(&gray).unwrap();
+        assert!(text.contains("\"gray_channel\":true"), "{text}");
+        assert_eq!(serde_json::from_str::<PreprocessConfig>(&text).unwrap(), gray);
+    }
+
+    #[test]
+    fn the_gray_channel_follows_the_edges_and_mirrors_with_them() {
+        // A lit wall beside a darker one, and a painted line on the lit one.
+        let img = RgbImage::from_fn(640, 480, |x, _| match x {
+            0..320 => Rgb([200, 190, 180]),
+            _ if (400..404).contains(&x) => Rgb([60, 60, 60]),
+            _ => Rgb([110, 100, 90]),
+        });
+        let img = DynamicImage::ImageRgb8(img);
+        let plain = PreprocessConfig::default();
+        let gray = PreprocessConfig { gray_channel: true, ..Default::default() };
+        assert_eq!((plain.channels(), gray.channels()), (1, 2));
+        assert_eq!(network_input(&img, &plain).planes, vec![preprocess(&img, &plain)]);
+        let input = network_input(&img, &gray);
+        assert_eq!(input.planes, vec![preprocess(&img, &gray), network_gray(&img, &gray)]);
+        // Edges are 0 or 1, the gray image centred: lit wall above 0, dark one below.
+        let edges: Vec<f32> = input.values(0).collect();
+        assert!(edges.iter().all(|&v| v == 0.0 || v == 1.0));
+        let row: Vec<f32> = input.values(1).take(224).collect();
+        assert!(row[10] > 0.2 && row[200] < 0.0 && row[200] > -0.2, "{} {}", row[10], row[200]);
+        let flipped = input.flip_horizontal();
+        assert_eq!(flipped.planes[1].get_pixel(223, 5), input.planes[1].get_pixel(0, 5));
+        assert_eq!(flipped.flip_horizontal(), input);
     }
 
     #[test]

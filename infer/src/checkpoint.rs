@@ -183,7 +183,9 @@ pub fn load_weights(dir: &Path, config: &DetectorConfig, device: &Device) -> Res
 /// Loads the whole network of the checkpoint in `dir` (trunk, RPN and
 /// heads) as the starting point of a new run with `config`: fine-tuning a
 /// detector trained elsewhere. The two must describe the same layers; the
-/// post-processing and sampling settings may differ.
+/// post-processing and sampling settings may differ, and a detector of the
+/// edges alone may start one that also sees the grayscale image (the new
+/// input channel's weights start at zero).
 pub fn load_for_fine_tuning(dir: &Path, config: &DetectorConfig, device: &Device) -> Result<Network, CheckpointError> {
     let theirs = read_config(dir)?;
     let same_layers = |c: &DetectorConfig| {
@@ -191,7 +193,6 @@ pub fn load_for_fine_tuning(dir: &Path, config: &DetectorConfig, device: &Device
             c.backbone,
             c.width.to_bits(),
             c.hidden,
-            c.in_channels,
             c.num_classes,
             c.anchors.per_location(),
             c.roi.pool_size,
@@ -208,7 +209,21 @@ pub fn load_for_fine_tuning(dir: &Path, config: &DetectorConfig, device: &Device
             ),
         });
     }
-    load_weights(dir, config, device)
+    if theirs.in_channels > config.in_channels {
+        return Err(CheckpointError::Invalid {
+            path: dir.join(CONFIG_FILE),
+            message: format!(
+                "a detector of {} input channels cannot start one of {}: it would lose inputs it was trained on",
+                theirs.in_channels, config.in_channels
+            ),
+        });
+    }
+    let mut as_saved = config.clone();
+    as_saved.in_channels = theirs.in_channels;
+    as_saved.preprocess.gray_channel = theirs.preprocess.gray_channel;
+    let mut network = load_weights(dir, &as_saved, device)?;
+    network.widen_input(config.in_channels);
+    Ok(network)
 }
 
 #[cfg(test)]

@@ -80,6 +80,7 @@ pub struct DetectorConfig {
     /// 4096 * width^2, which keeps the heads' share of the compute as the
     /// convolutions shrink.
     pub hidden: usize,
+    /// Channels of the network input: the preprocessing's (`preprocess.channels()`).
     pub in_channels: usize,
     /// Foreground classes (corners are one class).
     pub num_classes: usize,
@@ -257,6 +258,11 @@ impl DetectorConfig {
             }
         }
         self.preprocess.validate().map_err(|e| e.within("preprocess"))?;
+        if self.in_channels != self.preprocess.channels() {
+            let problem =
+                format!("{} but the preprocessing gives {} channels", self.in_channels, self.preprocess.channels());
+            return Err(InvalidSetting::field("in_channels", problem));
+        }
         let size = self.input_size();
         if !size.is_multiple_of(32) || size < 64 {
             return Err(InvalidSetting::field(

@@ -4,12 +4,12 @@
 use std::path::Path;
 
 use burn::prelude::*;
-use image::{DynamicImage, GrayImage};
+use image::DynamicImage;
 
 use crate::checkpoint::{self, CheckpointError, CheckpointMeta};
 use crate::config::DetectorConfig;
 use crate::network::{Detection, Network};
-use datasets::preprocess::{ImageToNet, preprocess};
+use datasets::preprocess::{ImageToNet, NetInput, network_input};
 
 pub struct Detector {
     pub config: DetectorConfig,
@@ -40,8 +40,8 @@ impl Detector {
         if images.is_empty() {
             return Vec::new();
         }
-        let edges: Vec<GrayImage> = images.iter().map(|im| preprocess(im, &self.config.preprocess)).collect();
-        let found = self.detect_inputs(&edges);
+        let inputs: Vec<NetInput> = images.iter().map(|im| network_input(im, &self.config.preprocess)).collect();
+        let found = self.detect_inputs(&inputs);
         found
             .into_iter()
             .zip(images)
@@ -53,18 +53,22 @@ impl Detector {
     }
 
     /// Detections on already preprocessed network inputs, in input pixels.
-    pub fn detect_inputs(&self, edges: &[GrayImage]) -> Vec<Vec<Detection>> {
-        let inputs = input_tensor(edges, &self.device);
+    pub fn detect_inputs(&self, inputs: &[NetInput]) -> Vec<Vec<Detection>> {
+        let inputs = input_tensor(inputs, &self.device);
         self.network.detect(&self.config, inputs)
     }
 }
 
-/// Stacks preprocessed edge images (0 or 255) into a `[B, 1, S, S]` tensor of 0..1.
-pub fn input_tensor(edges: &[GrayImage], device: &Device) -> Tensor<4> {
-    let (w, h) = edges[0].dimensions();
-    let mut data = Vec::with_capacity(edges.len() * (w * h) as usize);
-    for e in edges {
-        data.extend(e.as_raw().iter().map(|&v| v as f32 / 255.0));
+/// Stacks preprocessed inputs (all of one size and channel count) into a
+/// `[B, C, S, S]` tensor of their network values ([`NetInput::values`]).
+pub fn input_tensor(inputs: &[NetInput], device: &Device) -> Tensor<4> {
+    let (w, h) = inputs[0].edges().dimensions();
+    let channels = inputs[0].planes.len();
+    let mut data = Vec::with_capacity(inputs.len() * channels * (w * h) as usize);
+    for input in inputs {
+        for c in 0..channels {
+            data.extend(input.values(c));
+        }
     }
-    Tensor::<4>::from_data(TensorData::new(data, [edges.len(), 1, h as usize, w as usize]), device)
+    Tensor::<4>::from_data(TensorData::new(data, [inputs.len(), channels, h as usize, w as usize]), device)
 }

@@ -13,8 +13,8 @@ pub fn evaluate_set(detector: &Detector, set: &[LabeledImage], batch: usize) -> 
     let size = detector.config.preprocess.size;
     let mut predictions: Vec<Vec<Detection>> = Vec::with_capacity(set.len());
     for chunk in set.chunks(batch.max(1)) {
-        let edges: Vec<_> = chunk.iter().map(|im| im.edges.clone()).collect();
-        for (dets, im) in detector.detect_inputs(&edges).into_iter().zip(chunk) {
+        let inputs: Vec<_> = chunk.iter().map(|im| im.input.clone()).collect();
+        for (dets, im) in detector.detect_inputs(&inputs).into_iter().zip(chunk) {
             let map = im.to_net(size);
             predictions.push(dets.into_iter().map(|d| Detection { bbox: map.to_image(&d.bbox), ..d }).collect());
         }

@@ -3,20 +3,20 @@
 
 use std::path::{Path, PathBuf};
 
-use image::GrayImage;
 use rayon::prelude::*;
 
 use crate::boxes::BBox;
 use crate::metrics::TruthCorner;
 use datasets::DataError;
 use datasets::formats::read_coco;
-use datasets::preprocess::{ImageToNet, PreprocessConfig, preprocess};
+use datasets::preprocess::{ImageToNet, NetInput, PreprocessConfig, network_input};
 
 #[derive(Debug, Clone)]
 pub struct LabeledImage {
     pub path: PathBuf,
-    /// The network input (Canny edges, square).
-    pub edges: GrayImage,
+    /// The network input (Canny edges, square; the grayscale image beside
+    /// them where the preprocessing asks for it).
+    pub input: NetInput,
     pub width: u32,
     pub height: u32,
     /// Corners in original image pixels.
@@ -66,7 +66,7 @@ pub fn load_coco_set(annotations: &Path, preprocess_config: &PreprocessConfig) -
                 .collect();
             Ok(LabeledImage {
                 path,
-                edges: preprocess(&image, preprocess_config),
+                input: network_input(&image, preprocess_config),
                 width: im.width,
                 height: im.height,
                 truth,

@@ -10,6 +10,7 @@ use crate::boxes::{BBox, batched_nms};
 use crate::config::{Backbone, DetectorConfig};
 use crate::faster_rcnn::{self, FasterRcnn};
 use crate::grid_net::{CELL_VALUES, GridHeadLayers, GridNet};
+use crate::trunk::{replace_value, widen_filters};
 
 // One network lives per process; boxing the larger variant would buy nothing.
 #[allow(clippy::large_enum_variant)]
@@ -121,6 +122,22 @@ impl Network {
             Self::FasterRcnn(m) => &m.trunk.features,
             Self::Grid(m) => &m.trunk.features,
         }
+    }
+
+    /// Gives the first convolution `channels` input channels, the new ones
+    /// with zero weights: the network answers exactly as before until
+    /// training teaches it to use them.
+    pub fn widen_input(&mut self, channels: usize) {
+        let (convs, _) = self.trunk_layers_mut();
+        let first = &mut convs[0];
+        let [out, have, kh, kw] = first.weight.dims();
+        if channels <= have {
+            return;
+        }
+        first.weight = first.weight.clone().map(|old| {
+            let wide = widen_filters(&crate::host(old.clone()), out, kh * kw, channels);
+            replace_value(&old, Tensor::<4>::from_data(TensorData::new(wide, [out, channels, kh, kw]), &old.device()))
+        });
     }
 
     /// Stops training of the first `n` convolutions: no gradient reaches

@@ -20,7 +20,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::config::{Backbone, DetectorConfig};
 use crate::network::Network;
-use crate::trunk::replace_value;
+use crate::trunk::{replace_value, widen_filters};
 
 /// torchvision's `features.N` index of each convolution: ReLU and pooling
 /// layers hold the indices in between and have no weights.
@@ -206,7 +206,8 @@ pub fn load_trunk(
         let first = i == 0;
         let inputs =
             if first { w.shape.get(1).copied() } else { kept.as_ref().map(Vec::len).or(w.shape.get(1).copied()) };
-        let in_ok = inputs == Some(ours[1]) || (first && ours[1] == 1);
+        // Any first layer folds to the edge channel (see `to_one_channel`).
+        let in_ok = inputs == Some(ours[1]) || first;
         let out_ok = w.shape.first() == Some(&ours[0]) || (prune && w.shape.first() > Some(&ours[0]));
         if w.shape.len() != 4 || !out_ok || !in_ok || w.shape[2..] != ours[2..] || b.shape != w.shape[..1] {
             let _ = writeln!(
@@ -229,7 +230,9 @@ pub fn load_trunk(
             _ => w.clone(),
         };
         let (weight, bias) = if first && w.shape[1] != ours[1] {
-            to_one_channel(&w, &b.values, convention)
+            let (weight, bias) = to_one_channel(&w, &b.values, convention);
+            // The edge channel; a grayscale channel beside it starts at zero weight.
+            (widen_filters(&weight, w.shape[0], w.shape[2] * w.shape[3], ours[1]), bias)
         } else {
             (w.values, b.values.clone())
         };

@@ -152,6 +152,17 @@ fn zero_bias(mut conv: Conv2d) -> Conv2d {
     conv
 }
 
+/// Filters `[out, have, kh, kw]` (flat, `kernel_area` = kh * kw) as filters
+/// of `channels` >= `have` input channels, the added ones at zero weight.
+pub fn widen_filters(weight: &[f32], out: usize, kernel_area: usize, channels: usize) -> Vec<f32> {
+    let wide_len = channels * kernel_area;
+    let mut wide = vec![0.0f32; out * wide_len];
+    for (filter, dst) in weight.chunks_exact(weight.len() / out).zip(wide.chunks_exact_mut(wide_len)) {
+        dst[..filter.len()].copy_from_slice(filter);
+    }
+    wide
+}
+
 /// A new value for a parameter tensor that keeps it trainable: a tensor made
 /// from scratch is not tracked by autodiff until told so.
 pub fn replace_value<const D: usize>(old: &Tensor<D>, new: Tensor<D>) -> Tensor<D> {

@@ -28,8 +28,15 @@ pub struct FeatureCache {
 
 impl FeatureCache {
     /// Bytes a cache of `entries` entries would take, from one probe image.
-    pub fn estimate_bytes(network: &Network, start: usize, size: u32, entries: usize, device: &Device) -> usize {
-        let probe = Tensor::<4>::zeros([1, 1, size as usize, size as usize], device);
+    pub fn estimate_bytes(
+        network: &Network,
+        start: usize,
+        input: [usize; 3],
+        entries: usize,
+        device: &Device,
+    ) -> usize {
+        let [c, h, w] = input;
+        let probe = Tensor::<4>::zeros([1, c, h, w], device);
         network.valid().trunk_until(probe, start).dims().iter().product::<usize>() * 4 * entries
     }
 

@@ -2,11 +2,11 @@
 //! horizontal flips, target assignment and the network's losses.
 
 use burn::prelude::*;
-use image::imageops::flip_horizontal;
 use rand::rngs::ChaCha8Rng;
 
 use crate::losses::{Losses, faster_rcnn_losses, grid_losses};
 use crate::targets::{grid_targets, roi_targets, rpn_targets};
+use datasets::preprocess::NetInput;
 use infer::boxes::BBox;
 use infer::config::DetectorConfig;
 use infer::detector::input_tensor;
@@ -16,7 +16,7 @@ use infer::network::Network;
 
 /// Network inputs with their ground-truth boxes in input pixels.
 pub struct Batch {
-    /// Images `[B, 1, S, S]` when `start` is 0, else the cached output of
+    /// Images `[B, C, S, S]` when `start` is 0, else the cached output of
     /// the first `start` (frozen) trunk convolutions.
     pub inputs: Tensor<4>,
     pub start: usize,
@@ -28,14 +28,14 @@ pub fn make_batch(images: &[&LabeledImage], flips: &[bool], size: u32, device: &
     Batch { inputs: batch_inputs(images, flips, device), start: 0, boxes: batch_boxes(images, flips, size) }
 }
 
-/// The images' edge maps as a `[B, 1, S, S]` tensor, mirrored where flipped.
+/// The images' network inputs as a `[B, C, S, S]` tensor, mirrored where flipped.
 pub fn batch_inputs(images: &[&LabeledImage], flips: &[bool], device: &Device) -> Tensor<4> {
-    let edges: Vec<_> = images
+    let inputs: Vec<_> = images
         .iter()
         .zip(flips)
-        .map(|(im, &flip)| if flip { flip_horizontal(&im.edges) } else { im.edges.clone() })
+        .map(|(im, &flip)| if flip { im.input.flip_horizontal() } else { im.input.clone() })
         .collect();
-    input_tensor(&edges, device)
+    input_tensor(&inputs, device)
 }
 
 /// The images' boxes in input pixels, mirrored where flipped.
@@ -96,14 +96,16 @@ pub fn batch_losses(network: &Network, config: &DetectorConfig, batch: &Batch, r
 }
 
 /// A synthetic batch (benchmarks, backend comparisons): edge maps of a
-/// diagonal pattern with six boxes each, the same on every device.
+/// diagonal pattern with six boxes each (every channel alike), the same on
+/// every device.
 pub fn synthetic_batch(config: &DetectorConfig, batch: usize, device: &Device) -> Batch {
     let size = config.preprocess.size;
-    let edges: Vec<image::GrayImage> = (0..batch)
+    let inputs: Vec<NetInput> = (0..batch)
         .map(|i| {
-            image::GrayImage::from_fn(size, size, |x, y| {
+            let plane = image::GrayImage::from_fn(size, size, |x, y| {
                 if (x * 7 + y * 13 + i as u32 * 31).is_multiple_of(17) { image::Luma([255]) } else { image::Luma([0]) }
-            })
+            });
+            NetInput { planes: vec![plane; config.in_channels] }
         })
         .collect();
     let boxes = (0..batch)
@@ -116,5 +118,5 @@ pub fn synthetic_batch(config: &DetectorConfig, batch: usize, device: &Device) -
                 .collect()
         })
         .collect();
-    Batch { inputs: input_tensor(&edges, device), start: 0, boxes }
+    Batch { inputs: input_tensor(&inputs, device), start: 0, boxes }
 }

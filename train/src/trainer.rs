@@ -404,9 +404,10 @@ fn frozen_feature_caches(
     }
     let device = &device.clone().without_autodiff();
     let (train_set, valid_set) = (data.train_refs(), data.valid_refs());
-    let size = config.detector.preprocess.size;
+    let size = config.detector.preprocess.size as usize;
+    let input = [config.detector.in_channels, size, size];
     let entries = train_set.len() * if config.augment { 2 } else { 1 } + valid_set.len();
-    let bytes = FeatureCache::estimate_bytes(network, config.freeze, size, entries, device);
+    let bytes = FeatureCache::estimate_bytes(network, config.freeze, input, entries, device);
     if bytes > MAX_CACHE_BYTES {
         eprintln!(
             "not caching the frozen features: {:.1} GiB is too much memory; freeze more layers to cache",

@@ -9,7 +9,7 @@ use std::collections::HashMap;
 use std::path::Path;
 
 use burn::prelude::*;
-use common::{tiny_config, train_losses};
+use common::{tiny_config, tiny_data, train_losses};
 use infer::checkpoint;
 use infer::config::Backbone;
 use infer::network::Network;
@@ -200,4 +200,81 @@ fn a_checkpoint_folder_starts_every_layer_and_one_of_another_width_is_refused() 
     let text = format!("{err:#}");
     assert!(text.contains("config.json") && text.contains("the layers differ"), "{text}");
     assert!(!dir.path().join("third/losses.csv").exists());
+}
+
+#[test]
+fn an_edge_detector_starts_one_that_also_sees_the_gray_image_answering_as_before() {
+    let _turn = one_at_a_time();
+    let dir = tempfile::tempdir().unwrap();
+    let first = dir.path().join("edges");
+    train::train(Some(tiny_config(Backbone::FasterRcnn, 1)), &first, false).unwrap();
+    let saved_dir = first.join("checkpoint");
+    let device = Device::flex();
+    let edges_config = checkpoint::read_config(&saved_dir).unwrap();
+    let saved = checkpoint::load_weights(&saved_dir, &edges_config, &device).unwrap();
+
+    let mut gray = tiny_config(Backbone::FasterRcnn, 1);
+    gray.detector.preprocess.gray_channel = true;
+    gray.detector.in_channels = 2;
+    let widened = checkpoint::load_for_fine_tuning(&saved_dir, &gray.detector, &device).unwrap();
+    let (old, new) = (&saved.trunk_convs()[0], &widened.trunk_convs()[0]);
+    let [out, _, kh, kw] = old.weight.dims();
+    assert_eq!(new.weight.dims(), [out, 2, kh, kw]);
+    let (old_w, new_w) = (infer::host(old.weight.val()), infer::host(new.weight.val()));
+    let k = kh * kw;
+    for o in 0..out {
+        assert_eq!(new_w[o * 2 * k..o * 2 * k + k], old_w[o * k..(o + 1) * k]);
+        assert!(new_w[o * 2 * k + k..(o + 1) * 2 * k].iter().all(|&v| v == 0.0));
+    }
+
+    // On real inputs, the gray image beside the edges changes nothing yet.
+    let test = tiny_data().join("test.json");
+    let plain_set = infer::labeled::load_coco_set(&test, &edges_config.preprocess).unwrap();
+    let gray_set = infer::labeled::load_coco_set(&test, &gray.detector.preprocess).unwrap();
+    let stack = |set: &[infer::labeled::LabeledImage]| {
+        infer::detector::input_tensor(&set.iter().map(|im| im.input.clone()).collect::<Vec<_>>(), &device)
+    };
+    let convs = saved.trunk_convs().len();
+    let before = infer::host(saved.valid().trunk_until(stack(&plain_set), convs));
+    let after = infer::host(widened.valid().trunk_until(stack(&gray_set), convs));
+    assert_eq!(before.len(), after.len());
+    let worst = before.iter().zip(&after).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+    assert!(worst <= 1e-5, "features differ by {worst}");
+
+    // Fine-tuning teaches the new channel: its weights leave zero.
+    gray.start = Start::Detector(saved_dir.clone());
+    let second = dir.path().join("gray");
+    train::train(Some(gray), &second, false).unwrap();
+    let trained = checkpoint::read_config(&second.join("checkpoint")).unwrap();
+    assert_eq!((trained.in_channels, trained.preprocess.gray_channel), (2, true));
+    let w = &conv_weights(&second)[0];
+    assert!((0..out).any(|o| w[o * 2 * k + k..(o + 1) * 2 * k].iter().any(|&v| v != 0.0)));
+
+    // The other way round would drop an input the network was trained on.
+    let err = checkpoint::load_for_fine_tuning(&second.join("checkpoint"), &edges_config, &device).unwrap_err();
+    assert!(format!("{err}").contains("2 input channels cannot start one of 1"), "{err}");
+}
+
+#[test]
+fn a_trunk_file_of_edges_starts_the_edge_channel_of_a_gray_network() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = trunk_file(Backbone::Vgg16, dir.path(), 5);
+    let mut detector = tiny_config(Backbone::Vgg16, 1).detector;
+    detector.preprocess.gray_channel = true;
+    detector.in_channels = 2;
+    let mut network = Network::new(&detector, &Device::flex());
+    let report =
+        infer::pretrained::load_trunk(&mut network, &detector, &path, infer::pretrained::InputConvention::Raw, false)
+            .unwrap();
+    assert!(report.skipped.is_empty(), "{report:?}");
+    let file = &read_tensors(&path).unwrap()["features.0.weight"];
+    let [out, one, kh, kw] = [file.shape[0], file.shape[1], file.shape[2], file.shape[3]];
+    assert_eq!(one, 1);
+    let ours = infer::host(network.trunk_convs()[0].weight.val());
+    let k = kh * kw;
+    assert_eq!(ours.len(), out * 2 * k);
+    for o in 0..out {
+        assert_eq!(ours[o * 2 * k..o * 2 * k + k], file.values[o * k..(o + 1) * k]);
+        assert!(ours[o * 2 * k + k..(o + 1) * 2 * k].iter().all(|&v| v == 0.0));
+    }
 }

@@ -48,6 +48,10 @@ struct Args {
     lr: Option<f64>,
     #[arg(long, default_value_t = 42)]
     seed: u64,
+    /// The grayscale image as a second input channel beside the edges (as
+    /// `train --gray-channel`).
+    #[arg(long)]
+    gray_channel: bool,
     /// Start the pretraining from these weights (a trunk file or a
     /// checkpoint folder, as `train --pretrained`) instead of from scratch.
     #[arg(long)]
@@ -66,6 +70,8 @@ fn run_main() -> Result<()> {
         bail!("--out {}: not a folder", args.out.display());
     }
     let mut config = PretrainConfig::new(args.backbone, args.width);
+    config.detector.preprocess.gray_channel = args.gray_channel;
+    config.detector.in_channels = config.detector.preprocess.channels();
     config.corpus = CorpusConfig {
         seed: args.corpus_seed,
         worlds: args.worlds,

@@ -26,7 +26,7 @@ struct Args {
     /// refused: a resumed run ends as the uninterrupted one would).
     #[arg(long, conflicts_with_all = [
         "backbone", "data", "out", "epochs", "batch_size", "optimizer", "lr", "seed", "width", "no_augment",
-        "adaptive_canny", "backend", "hidden", "grid_head", "pretrained", "pretrained_input", "pretrained_prune", "freeze", "no_cache",
+        "adaptive_canny", "gray_channel", "backend", "hidden", "grid_head", "pretrained", "pretrained_input", "pretrained_prune", "freeze", "no_cache",
     ])]
     resume: Option<PathBuf>,
     /// Epochs (default: 24 for faster-rcnn and vgg16, 40 for alexnet).
@@ -54,6 +54,12 @@ struct Args {
     /// choice, so inference preprocesses the same way.
     #[arg(long)]
     adaptive_canny: bool,
+    /// Give the network the grayscale image as a second input channel beside
+    /// the Canny edges (the paper's network sees the edges alone); a
+    /// --pretrained detector of the edges alone starts it with the new
+    /// channel's weights at zero.
+    #[arg(long)]
+    gray_channel: bool,
     #[arg(long, value_enum, default_value_t)]
     backend: ComputeBackend,
     /// Width of the fully connected layers (default: 4096 x width^2, at least 64).
@@ -117,6 +123,8 @@ fn run_main() -> Result<()> {
             if args.adaptive_canny {
                 c.detector.preprocess.adaptive_canny = Some(Default::default());
             }
+            c.detector.preprocess.gray_channel = args.gray_channel;
+            c.detector.in_channels = c.detector.preprocess.channels();
             c.backend = args.backend;
             if let Some(h) = args.hidden {
                 c.detector.hidden = h;
