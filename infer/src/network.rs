@@ -166,7 +166,7 @@ impl Network {
         }
     }
 
-    /// Detections on a batch `[B, 1, S, S]` of network inputs, in input pixels.
+    /// Detections on a batch `[B, C, S, S]` of network inputs, in input pixels.
     pub fn detect(&self, config: &DetectorConfig, inputs: Tensor<4>) -> Vec<Vec<Detection>> {
         let size = config.input_size() as f32;
         let d = &config.detection;
