@@ -216,6 +216,13 @@ impl DetectorConfig {
         }
     }
 
+    /// Feeds the grayscale image beside the edges (or not), and sizes the
+    /// network's input to match: the two must change together.
+    pub fn set_gray_channel(&mut self, on: bool) {
+        self.preprocess.gray_channel = on;
+        self.in_channels = self.preprocess.channels();
+    }
+
     /// A channel count of torchvision's network scaled by the width.
     pub fn channels(&self, torchvision: usize) -> usize {
         self.trunk().channels(torchvision)

@@ -6,12 +6,12 @@
 mod common;
 
 use std::collections::HashMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use burn::prelude::*;
 use common::{tiny_config, tiny_data, train_losses};
 use infer::checkpoint;
-use infer::config::Backbone;
+use infer::config::{Backbone, DetectorConfig};
 use infer::network::Network;
 use infer::pretrained::{read_tensors, save_trunk};
 use train::Start;
@@ -22,7 +22,7 @@ fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
 }
 
 /// A trunk file from a freshly drawn network of the tiny config's shape.
-fn trunk_file(backbone: Backbone, dir: &Path, seed: u64) -> std::path::PathBuf {
+fn trunk_file(backbone: Backbone, dir: &Path, seed: u64) -> PathBuf {
     let config = tiny_config(backbone, 1).detector;
     let device = Device::flex();
     device.seed(seed);
@@ -157,15 +157,22 @@ fn pretrain_writes_a_trunk_that_train_accepts() {
     assert!(report.unused.iter().all(|k| !k.starts_with("features.")), "{report:?}");
 }
 
+/// A tiny faster-rcnn trained into `out`: its checkpoint folder, config and weights.
+fn a_trained_checkpoint(out: &Path, device: &Device) -> (PathBuf, DetectorConfig, Network) {
+    train::train(Some(tiny_config(Backbone::FasterRcnn, 1)), out, false).unwrap();
+    let saved_dir = out.join("checkpoint");
+    let config = checkpoint::read_config(&saved_dir).unwrap();
+    let saved = checkpoint::load_weights(&saved_dir, &config, device).unwrap();
+    (saved_dir, config, saved)
+}
+
 #[test]
 fn a_checkpoint_folder_starts_every_layer_and_one_of_another_width_is_refused() {
     let _turn = one_at_a_time();
     let dir = tempfile::tempdir().unwrap();
-    let first = dir.path().join("first");
-    train::train(Some(tiny_config(Backbone::FasterRcnn, 1)), &first, false).unwrap();
-    let saved_dir = first.join("checkpoint");
     let device = Device::flex();
-    let saved = checkpoint::load_weights(&saved_dir, &checkpoint::read_config(&saved_dir).unwrap(), &device).unwrap();
+    let first = dir.path().join("first");
+    let (saved_dir, _, saved) = a_trained_checkpoint(&first, &device);
 
     // The heads come from the folder too, not from a fresh draw.
     let config = tiny_config(Backbone::FasterRcnn, 1).detector;
@@ -206,16 +213,11 @@ fn a_checkpoint_folder_starts_every_layer_and_one_of_another_width_is_refused() 
 fn an_edge_detector_starts_one_that_also_sees_the_gray_image_answering_as_before() {
     let _turn = one_at_a_time();
     let dir = tempfile::tempdir().unwrap();
-    let first = dir.path().join("edges");
-    train::train(Some(tiny_config(Backbone::FasterRcnn, 1)), &first, false).unwrap();
-    let saved_dir = first.join("checkpoint");
     let device = Device::flex();
-    let edges_config = checkpoint::read_config(&saved_dir).unwrap();
-    let saved = checkpoint::load_weights(&saved_dir, &edges_config, &device).unwrap();
+    let (saved_dir, edges_config, saved) = a_trained_checkpoint(&dir.path().join("edges"), &device);
 
     let mut gray = tiny_config(Backbone::FasterRcnn, 1);
-    gray.detector.preprocess.gray_channel = true;
-    gray.detector.in_channels = 2;
+    gray.detector.set_gray_channel(true);
     let widened = checkpoint::load_for_fine_tuning(&saved_dir, &gray.detector, &device).unwrap();
     let (old, new) = (&saved.trunk_convs()[0], &widened.trunk_convs()[0]);
     let [out, _, kh, kw] = old.weight.dims();
@@ -260,8 +262,7 @@ fn a_trunk_file_of_edges_starts_the_edge_channel_of_a_gray_network() {
     let dir = tempfile::tempdir().unwrap();
     let path = trunk_file(Backbone::Vgg16, dir.path(), 5);
     let mut detector = tiny_config(Backbone::Vgg16, 1).detector;
-    detector.preprocess.gray_channel = true;
-    detector.in_channels = 2;
+    detector.set_gray_channel(true);
     let mut network = Network::new(&detector, &Device::flex());
     let report =
         infer::pretrained::load_trunk(&mut network, &detector, &path, infer::pretrained::InputConvention::Raw, false)

@@ -70,8 +70,7 @@ fn run_main() -> Result<()> {
         bail!("--out {}: not a folder", args.out.display());
     }
     let mut config = PretrainConfig::new(args.backbone, args.width);
-    config.detector.preprocess.gray_channel = args.gray_channel;
-    config.detector.in_channels = config.detector.preprocess.channels();
+    config.detector.set_gray_channel(args.gray_channel);
     config.corpus = CorpusConfig {
         seed: args.corpus_seed,
         worlds: args.worlds,

@@ -123,8 +123,7 @@ fn run_main() -> Result<()> {
             if args.adaptive_canny {
                 c.detector.preprocess.adaptive_canny = Some(Default::default());
             }
-            c.detector.preprocess.gray_channel = args.gray_channel;
-            c.detector.in_channels = c.detector.preprocess.channels();
+            c.detector.set_gray_channel(args.gray_channel);
             c.backend = args.backend;
             if let Some(h) = args.hidden {
                 c.detector.hidden = h;
