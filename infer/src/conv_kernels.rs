@@ -13,6 +13,8 @@
 use gemm::Parallelism;
 use rayon::prelude::*;
 
+use crate::direct_conv;
+
 /// The sizes of one convolution. `padding` is the padding before each
 /// spatial axis; padding after it only shows in `out_hw`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -312,13 +314,34 @@ pub fn relu_grad(out: &[f32], grad: &mut [f32]) {
     });
 }
 
+/// The forward pass by the direct kernel where it applies (3x3 layers with
+/// few output channels), by im2col + GEMM elsewhere.
 fn forward_then(x: &[f32], weight: &[f32], bias: Option<&[f32]>, geo: &ConvGeometry, relu: bool) -> Vec<f32> {
     check_lengths(geo, Some(x), Some(weight), None);
     if let Some(bias) = bias {
         assert_eq!(bias.len(), geo.out_channels, "bias length");
     }
+    if direct_conv::applies(geo) {
+        return direct_conv::forward(x, weight, bias, geo, relu);
+    }
+    forward_im2col(x, weight, bias, geo, relu)
+}
+
+/// The forward pass as im2col tiles and one GEMM per tile, for any geometry.
+pub fn forward_im2col(x: &[f32], weight: &[f32], bias: Option<&[f32]>, geo: &ConvGeometry, relu: bool) -> Vec<f32> {
+    check_lengths(geo, Some(x), Some(weight), None);
+    if let Some(bias) = bias {
+        assert_eq!(bias.len(), geo.out_channels, "bias length");
+    }
     let (patch, l, og) = (geo.patch_len(), geo.out_len(), geo.group_out());
-    let mut out = vec![0.0f32; geo.batch * geo.out_channels * l];
+    let len = geo.batch * geo.out_channels * l;
+    if patch == 0 {
+        return vec![0.0; len];
+    }
+    // Not zeroed: the GEMMs below (which do not read their destination)
+    // write every value once; on reused heap memory the memset was a few
+    // percent of a training step.
+    let mut out: Vec<f32> = Vec::with_capacity(len);
     let tiles = geo.tiles();
     let tasks = split_tiles(&tiles);
     let parallelism = gemm_parallelism(tasks.len());
@@ -372,6 +395,9 @@ fn forward_then(x: &[f32], weight: &[f32], bias: Option<&[f32]>, geo: &ConvGeome
             }
         }
     });
+    // SAFETY: the tiles cover every image's output columns and the groups
+    // every channel, so each of the `len` values was written above.
+    unsafe { out.set_len(len) };
     out
 }
 
