@@ -42,8 +42,8 @@ pub struct Roles {
     pub lidar: usize,
     pub image: Option<usize>,
     pub camera_info: Option<usize>,
-    pub imu: usize,
-    pub odometry: usize,
+    pub imu: Option<usize>,
+    pub odometry: Option<usize>,
     pub ground_truth: Option<usize>,
     pub tf_static: Option<usize>,
     pub tf: Option<usize>,
@@ -141,8 +141,8 @@ pub fn find_roles(recording: &Recording, options: &BagOptions) -> Result<(Roles,
         &[CameraInfo],
         same_namespace,
     )?;
-    let imu = pick(recording, "IMU", "--imu-topic", options.imu_topic.as_deref(), &[Imu], non_empty(&[Imu]))?
-        .ok_or_else(|| bag_error(recording, "no sensor_msgs/msg/Imu topic: the filter needs an IMU (--imu-topic)"))?;
+    // Either may be missing: the previous motion then carries on (`SensorReplay`).
+    let imu = pick(recording, "IMU", "--imu-topic", options.imu_topic.as_deref(), &[Imu], non_empty(&[Imu]))?;
     let odometry = pick(
         recording,
         "odometry",
@@ -150,10 +150,7 @@ pub fn find_roles(recording: &Recording, options: &BagOptions) -> Result<(Roles,
         options.odom_topic.as_deref(),
         &[Odometry],
         non_empty(&[Odometry]),
-    )?
-    .ok_or_else(|| {
-        bag_error(recording, "no nav_msgs/msg/Odometry topic: the filter needs wheel odometry (--odom-topic)")
-    })?;
+    )?;
     // Ground truth is never guessed among odometry topics: by type, only
     // PoseStamped ones.
     let ground_truth = pick(
@@ -176,8 +173,8 @@ pub fn find_roles(recording: &Recording, options: &BagOptions) -> Result<(Roles,
     notes.push(describe("lidar", Some(lidar)));
     notes.push(describe("camera", image));
     notes.push(describe("camera_info", camera_info));
-    notes.push(describe("imu", Some(imu)));
-    notes.push(describe("odometry", Some(odometry)));
+    notes.push(describe("imu", imu));
+    notes.push(describe("odometry", odometry));
     notes.push(describe("ground truth", ground_truth));
     notes.push(describe("tf_static", tf_static));
     Ok((Roles { lidar, image, camera_info, imu, odometry, ground_truth, tf_static, tf }, notes))
@@ -315,12 +312,11 @@ impl BagSequence {
 
     fn first_pass(recording: &Recording, roles: &Roles) -> Result<FirstPass> {
         let mut pass = FirstPass::default();
-        let wanted: Vec<usize> =
-            [Some(roles.lidar), roles.image, roles.camera_info, Some(roles.imu), Some(roles.odometry)]
-                .into_iter()
-                .chain([roles.ground_truth, roles.tf_static, roles.tf])
-                .flatten()
-                .collect();
+        let wanted: Vec<usize> = [Some(roles.lidar), roles.image, roles.camera_info, roles.imu, roles.odometry]
+            .into_iter()
+            .chain([roles.ground_truth, roles.tf_static, roles.tf])
+            .flatten()
+            .collect();
         let truth_kind = roles.ground_truth.and_then(|k| recording.topics[k].kind());
         recording.read(&wanted, &mut |m| {
             let header = || recording.decode(&m, |r| r.header());
@@ -340,7 +336,7 @@ impl BagSequence {
                 if pass.camera_info.is_none() {
                     pass.camera_info = Some(recording.decode(&m, camera_info::camera_info)?);
                 }
-            } else if m.topic == roles.imu {
+            } else if Some(m.topic) == roles.imu {
                 let imu = recording.decode(&m, geometry::imu)?;
                 if in_order(recording, &m, pass.imu.last().map(|s| s.header.stamp_s()), imu.header.stamp_s())? {
                     pass.imu_frame.get_or_insert(imu.header.frame_id.clone());
@@ -348,7 +344,7 @@ impl BagSequence {
                 } else {
                     pass.dropped_duplicates += 1;
                 }
-            } else if m.topic == roles.odometry {
+            } else if Some(m.topic) == roles.odometry {
                 let odom = recording.decode(&m, geometry::odometry)?;
                 if in_order(recording, &m, pass.odometry.last().map(|s| s.header.stamp_s()), odom.header.stamp_s())? {
                     pass.odometry.push(odom);

@@ -15,6 +15,7 @@ use crate::plane_landmarks::PlaneLandmarkConfig;
 use crate::planes::PlaneConfig;
 use crate::pose::PoseConfig;
 use crate::relocalize::RelocalizeConfig;
+use crate::rgbd_sequence::DepthOptions;
 use crate::scan_match::ScanMatchConfig;
 use crate::sequence::SyncConfig;
 use crate::voxel::VoxelConfig;
@@ -37,6 +38,8 @@ pub struct LocalizeConfig {
     pub relocalize: RelocalizeConfig,
     /// Level floors as a roll and pitch reading.
     pub level_floor: LevelFloorConfig,
+    /// Depth images as scans (RGB-D input).
+    pub depth: DepthOptions,
 }
 
 /// Largest count a setting may ask for (points, votes, observations).
@@ -52,6 +55,31 @@ impl LocalizeConfig {
         config.level_floor.enabled = false;
         config.sync.detector_rate_hz = 0.0;
         config
+    }
+
+    /// `self` with the settings of a `--config` file's JSON over it (fields
+    /// the file leaves out keep `self`'s), checked.
+    pub fn overlaid(&self, file: &serde_json::Value) -> Result<Self, String> {
+        fn merge(base: &mut serde_json::Value, over: &serde_json::Value) {
+            match (base, over) {
+                (serde_json::Value::Object(b), serde_json::Value::Object(o)) => {
+                    for (key, value) in o {
+                        match b.get_mut(key) {
+                            Some(slot) => merge(slot, value),
+                            None => {
+                                b.insert(key.clone(), value.clone());
+                            }
+                        }
+                    }
+                }
+                (slot, value) => *slot = value.clone(),
+            }
+        }
+        let mut merged = serde_json::to_value(self).map_err(|e| e.to_string())?;
+        merge(&mut merged, file);
+        let config: Self = serde_json::from_value(merged).map_err(|e| e.to_string())?;
+        config.validate().map_err(|e| e.to_string())?;
+        Ok(config)
     }
 
     /// Checks every setting against the range where it means something; the
@@ -124,12 +152,15 @@ impl LocalizeConfig {
             ("ekf.gravity_gate_mps2", e.gravity_gate_mps2),
             ("ekf.gravity_gate_chi2", e.gravity_gate_chi2),
             ("ekf.ramp_slip_per_s", e.ramp_slip_per_s),
+            ("ekf.velocity_change_mps2", e.velocity_change_mps2),
+            ("ekf.rate_change_rps2", e.rate_change_rps2),
         ] {
             non_negative(name, v, 1000.0)?;
         }
         self.scan_match.validate().map_err(|e| e.within("scan_match"))?;
         self.sync.validate().map_err(|e| e.within("sync"))?;
         self.relocalize.validate().map_err(|e| e.within("relocalize"))?;
+        self.depth.validate().map_err(|e| e.within("depth"))?;
         self.level_floor.validate().map_err(|e| e.within("level_floor"))
     }
 }
@@ -160,5 +191,19 @@ mod tests {
         assert_eq!(with(&|c| c.level_floor.max_split_sigmas = f64::NAN).field, "level_floor.max_split_sigmas");
         // A ramp cannot be less tilted than what counts as level.
         assert_eq!(with(&|c| c.level_floor.ramp_max_tilt_deg = 1.0).field, "level_floor.ramp_max_tilt_deg");
+    }
+
+    #[test]
+    fn a_file_overlays_only_the_fields_it_names() {
+        let mut base = LocalizeConfig::default();
+        base.scan_match.source_voxel_m = 0.05;
+        let file = serde_json::json!({"scan_match": {"iterations": 4}, "sync": {"deskew": false}});
+        let config = base.overlaid(&file).unwrap();
+        assert_eq!((config.scan_match.source_voxel_m, config.scan_match.iterations), (0.05, 4));
+        assert!(!config.sync.deskew && config.sync.camera_motion);
+        let unknown = base.overlaid(&serde_json::json!({"scan_match": {"iteration": 4}})).unwrap_err();
+        assert!(unknown.contains("unknown field `iteration`"), "{unknown}");
+        let bad = base.overlaid(&serde_json::json!({"pose": {"huber": -1.0}})).unwrap_err();
+        assert!(bad.contains("pose.huber"), "{bad}");
     }
 }

@@ -50,6 +50,11 @@ pub struct EkfConfig {
     /// How much the wheels' speed scale may change on a 10 degree slope
     /// within a second, in proportion to the slope: wheels slip on ramps.
     pub ramp_slip_per_s: f64,
+    /// Without wheels, the velocity carries on from the previous motion and
+    /// may change by this much a second (standard deviation).
+    pub velocity_change_mps2: f64,
+    /// Without a gyro, the angular rate carries on likewise.
+    pub rate_change_rps2: f64,
 }
 
 impl Default for EkfConfig {
@@ -66,6 +71,8 @@ impl Default for EkfConfig {
             gravity_gate_mps2: 0.3,
             gravity_gate_chi2: 13.8,
             ramp_slip_per_s: 0.03,
+            velocity_change_mps2: 2.0,
+            rate_change_rps2: 3.0,
         }
     }
 }
@@ -113,10 +120,16 @@ impl Ekf {
 
     /// Propagates by `dt` with the body angular rate `gyro` and wheel speed `speed`.
     pub fn predict(&mut self, gyro: &Vec3, speed: f64, dt: f64) {
+        self.predict_motion(&BodyMotion::measured(*gyro, speed), dt);
+    }
+
+    /// Propagates by `dt` with `motion`: each of the rate and the velocity
+    /// measured (gyro, wheels) or carried on from the previous motion.
+    pub fn predict_motion(&mut self, motion: &BodyMotion, dt: f64) {
         if dt <= 0.0 {
             return;
         }
-        let f = |x: &State| propagate(x, gyro, speed, dt);
+        let f = |x: &State| propagate_body(x, motion, dt);
         // The model is smooth and the state small: a central-difference
         // Jacobian is exact enough and cannot get a sign wrong.
         let mut jacobian = Covariance::zeros();
@@ -133,8 +146,15 @@ impl Ekf {
         }
         let c = &self.config;
         let mut q = Covariance::zeros();
-        let sv = (c.speed_noise_mps * dt).powi(2);
-        let sg = (c.gyro_noise_rps * dt).powi(2);
+        // A carried-on motion drifts as a change of velocity held since it
+        // was measured: after t seconds, sigma t^2 / 2 off. The variance
+        // added over the step is the growth over it, whatever the steps.
+        let carried = |sigma: f64| {
+            let (t0, t1) = (motion.carried_s.max(0.0), motion.carried_s.max(0.0) + dt);
+            sigma * sigma * (t1.powi(4) - t0.powi(4)) / 4.0
+        };
+        let sv = if motion.wheels { (c.speed_noise_mps * dt).powi(2) } else { carried(c.velocity_change_mps2) };
+        let sg = if motion.gyro { (c.gyro_noise_rps * dt).powi(2) } else { carried(c.rate_change_rps2) };
         for k in 0..3 {
             q[(k, k)] = sv;
             q[(3 + k, 3 + k)] = sg;
@@ -280,16 +300,52 @@ pub fn pose_vector(x: &State) -> SVector<f64, 6> {
     x.fixed_rows::<6>(0).into_owned()
 }
 
-/// The motion model: attitude integrates the bias-corrected gyro rate in the
-/// body frame; position moves along the body's x axis at the scaled wheel
-/// speed (midpoint attitude).
+/// How the body moves over one prediction step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BodyMotion {
+    /// Angular rate (rad/s, body frame).
+    pub rate: Vec3,
+    /// The rate is a gyro's: the state's gyro bias is taken off it.
+    pub gyro: bool,
+    /// Velocity (m/s, body frame).
+    pub velocity: Vec3,
+    /// The velocity is the wheels' forward speed: the state's scale applies.
+    pub wheels: bool,
+    /// Seconds since a carried-on rate or velocity was measured, at the
+    /// step's start (its uncertainty grows with it).
+    pub carried_s: f64,
+}
+
+impl BodyMotion {
+    /// A gyro's rate and the wheels' forward speed.
+    pub fn measured(gyro: Vec3, speed: f64) -> Self {
+        Self { rate: gyro, gyro: true, velocity: Vec3::new(speed, 0.0, 0.0), wheels: true, carried_s: 0.0 }
+    }
+}
+
+/// The motion model with a gyro and wheels: attitude integrates the
+/// bias-corrected gyro rate in the body frame; position moves along the
+/// body's x axis at the scaled wheel speed (midpoint attitude).
 pub fn propagate(x: &State, gyro: &Vec3, speed: f64, dt: f64) -> State {
+    propagate_body(x, &BodyMotion::measured(*gyro, speed), dt)
+}
+
+/// The motion model: attitude integrates the body rate (bias-corrected when
+/// it is a gyro's), position moves by the body velocity (scaled when it is
+/// the wheels') at the midpoint attitude.
+pub fn propagate_body(x: &State, motion: &BodyMotion, dt: f64) -> State {
     let r0 = rotation(x[3], x[4], x[5]);
-    let rate = gyro - Vec3::new(x[6], x[7], x[8]);
+    let rate = if motion.gyro { motion.rate - Vec3::new(x[6], x[7], x[8]) } else { motion.rate };
     let step = Rot3::from_scaled_axis(rate * dt);
     let r1 = r0 * step;
-    let mid = r0 * Rot3::from_scaled_axis(rate * dt * 0.5);
-    let velocity = mid * Vec3::new(x[SCALE] * speed, 0.0, 0.0);
+    let velocity = if motion.wheels {
+        let mid = r0 * Rot3::from_scaled_axis(rate * dt * 0.5);
+        mid * (motion.velocity * x[SCALE])
+    } else {
+        // A carried-on twist: the exact exponential, so that the prediction
+        // does not depend on how the time is cut into steps.
+        r0 * (left_jacobian(&(rate * dt)) * motion.velocity)
+    };
     let (roll, pitch, yaw) = r1.euler_angles();
     let mut out = *x;
     out[0] += velocity.x * dt;
@@ -299,6 +355,21 @@ pub fn propagate(x: &State, gyro: &Vec3, speed: f64, dt: f64) -> State {
     out[4] = pitch;
     out[5] = yaw;
     out
+}
+
+/// The left Jacobian of SO(3) at the rotation vector `phi`: a constant
+/// twist (rate w, velocity v) for time t moves the body by
+/// `J(w t) v t` in its starting frame.
+pub fn left_jacobian(phi: &Vec3) -> nalgebra::Matrix3<f64> {
+    let theta = phi.norm();
+    let k = phi.cross_matrix();
+    let (a, b) = if theta < 1e-4 {
+        // Series: 1/2 - theta^2/24 and 1/6 - theta^2/120.
+        (0.5 - theta * theta / 24.0, 1.0 / 6.0 - theta * theta / 120.0)
+    } else {
+        ((1.0 - theta.cos()) / (theta * theta), (theta - theta.sin()) / (theta * theta * theta))
+    };
+    nalgebra::Matrix3::identity() + a * k + b * k * k
 }
 
 #[cfg(test)]

@@ -141,7 +141,11 @@ pub fn run_sequence_in_map(
             _ => calibration.camera_from_lidar.inverse(),
         };
         let name = image.as_ref().map_or_else(|_| datasets::generate::stamp_name(stamp), |i| i.name.clone());
-        let image = image.and_then(|i| i.image).and_then(|image| detector_clock.take(stamp).map(|()| image));
+        let camera_off = matches!(source, CornerSource::Off);
+        let image = image
+            .and_then(|i| i.image)
+            .and_then(|image| if camera_off { Err("camera left out".to_string()) } else { Ok(image) })
+            .and_then(|image| detector_clock.take(stamp).map(|()| image));
         // The cloud's geometry and the detector are independent until fusion:
         // run them side by side, so each fills the cores the other leaves idle.
         let (geometry, (pixels, detect_ms)) = rayon::join(
@@ -164,6 +168,10 @@ pub fn run_sequence_in_map(
         }
         let camera = CameraCorners { pixels, lidar_from_camera, detect_ms };
         let report = localizer.process(stamp, &mut fused, geometry, camera, started);
+        // What the recording does not measure carries on from this motion.
+        if let (Some(&from_stamp), Some(from)) = (result.trajectory.stamps.last(), result.trajectory.poses.last()) {
+            replay.carry_on((from, from_stamp), (&report.pose, stamp));
+        }
         bar.set_message(report.status.label());
         bar.inc(1);
         result.trajectory.push(stamp, report.pose);
@@ -225,10 +233,10 @@ fn check_logs_cover(stamps: &[f64], sequence: &dyn SensorSequence) -> Result<()>
         ("odometry", sequence.odometry().first().map(|s| s.timestamp), sequence.odometry().last().map(|s| s.timestamp)),
         ("IMU", sequence.imu().first().map(|s| s.timestamp), sequence.imu().last().map(|s| s.timestamp)),
     ];
+    // A log the recording does not have is not checked: its role carries on
+    // from the previous motion (`SensorReplay`).
     for (name, first, last) in spans {
-        let (Some(first), Some(last)) = (first, last) else {
-            return Err(crate::error::LocalizeError::Recording(format!("the {name} log is empty")));
-        };
+        let (Some(first), Some(last)) = (first, last) else { continue };
         let outside: Vec<f64> = stamps
             .iter()
             .copied()
@@ -254,6 +262,9 @@ pub struct TrajectoryMetrics {
 #[derive(Debug, Clone, Serialize)]
 pub struct RunMetrics {
     pub fused: TrajectoryMetrics,
+    /// The fused trajectory's errors after the rigid (SE3) alignment that
+    /// fits it best to the truth, as RGB-D and visual odometry papers report.
+    pub fused_se3_aligned: ErrorSummary,
     pub odometry_imu: TrajectoryMetrics,
     pub frames: usize,
     /// Frames corrected with the camera's corners in the solve.
@@ -291,8 +302,10 @@ pub fn metrics_against(
     let (Some(fused), Some(odometry_imu)) = (measure(&result.trajectory), measure(&result.reference)) else {
         return Ok(None);
     };
+    let Ok(aligned) = compare(truth, &result.trajectory, Alignment::Se3, 0.01) else { return Ok(None) };
     Ok(Some(RunMetrics {
         fused,
+        fused_se3_aligned: aligned.summary,
         odometry_imu,
         frames: result.frames.len(),
         fused_frames: result.fused_frames(),
@@ -363,7 +376,7 @@ pub fn frames_csv(frames: &[FrameReport]) -> String {
 }
 
 /// The files `localize run` writes into its output folder, and nothing else.
-pub const RUN_OUTPUTS: [&str; 8] = [
+pub const RUN_OUTPUTS: [&str; 9] = [
     "trajectory.txt",
     "reference.txt",
     "frames.csv",
@@ -372,6 +385,7 @@ pub const RUN_OUTPUTS: [&str; 8] = [
     "metrics.json",
     "map.ply",
     "map.json",
+    "groundtruth.txt",
 ];
 
 /// Writes the run's outputs as one unit: the folder is filled beside its
@@ -404,6 +418,11 @@ pub fn write_outputs(
         crate::map_output::write_map(dir, &map)?;
         if let Some(m) = metrics {
             datasets::atomic::write_json(&dir.join("metrics.json"), m)?;
+        }
+        // The truth in the run's world: other tools' trajectories started
+        // there score against it (`localize eval`).
+        if let Some(truth) = truth {
+            write_tum(&dir.join("groundtruth.txt"), truth)?;
         }
         Ok(())
     })

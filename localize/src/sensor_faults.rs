@@ -10,19 +10,23 @@ use std::path::PathBuf;
 use datasets::formats::{Calibration, ImuSample, OdometrySample, Trajectory};
 
 use crate::error::Result;
+use crate::sensor_set::RangeSensor;
 use crate::sequence::{FrameInput, SensorSequence};
 
 /// The failures: scans lost in each gap (start and end, seconds after the
-/// first scan, end excluded) and no image from `camera_stop_s` on.
+/// first scan, end excluded), no image from `camera_stop_s` on, and the IMU
+/// or the wheels left out altogether (`--without-imu`, `--without-wheels`).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct SensorFaults {
     pub lidar_gaps: Vec<[f64; 2]>,
     pub camera_stop_s: Option<f64>,
+    pub without_imu: bool,
+    pub without_wheels: bool,
 }
 
 impl SensorFaults {
     pub fn is_empty(&self) -> bool {
-        self.lidar_gaps.is_empty() && self.camera_stop_s.is_none()
+        self.lidar_gaps.is_empty() && self.camera_stop_s.is_none() && !self.without_imu && !self.without_wheels
     }
 
     /// Whether the scan `since_start` seconds after the first one is lost.
@@ -62,10 +66,13 @@ impl SensorSequence for WithChanges {
         self.inner.calibration()
     }
     fn odometry(&self) -> &[OdometrySample] {
-        self.inner.odometry()
+        if self.faults.without_wheels { &[] } else { self.inner.odometry() }
     }
     fn imu(&self) -> &[ImuSample] {
-        self.inner.imu()
+        if self.faults.without_imu { &[] } else { self.inner.imu() }
+    }
+    fn range_sensor(&self) -> RangeSensor {
+        self.inner.range_sensor()
     }
     fn ground_truth(&self) -> Option<&Trajectory> {
         self.truth.as_ref().or_else(|| self.inner.ground_truth())
@@ -108,7 +115,7 @@ mod tests {
 
     #[test]
     fn a_gap_loses_the_scans_from_its_start_up_to_its_end() {
-        let faults = SensorFaults { lidar_gaps: vec![[2.0, 3.0]], camera_stop_s: None };
+        let faults = SensorFaults { lidar_gaps: vec![[2.0, 3.0]], ..SensorFaults::default() };
         let lost: Vec<bool> = [1.9, 2.0, 2.5, 2.999, 3.0].iter().map(|&t| faults.scan_lost(t)).collect();
         assert_eq!(lost, [false, true, true, true, false]);
     }

@@ -4,7 +4,8 @@
 //! give it: a sequence folder (here) and a ROS bag (`bag_sequence`).
 //!
 //! The folder layout (`datagen` writes it, DESIGN.md documents it):
-//! `cloud/<t>.pcd|ply|bin`, `rgb/<t>.png|jpg`, `odom.csv`, `imu.csv`,
+//! `cloud/<t>.pcd|ply|bin`, `rgb/<t>.png|jpg`, `odom.csv` and `imu.csv` (each
+//! optional),
 //! `calib.json` and, when known, `groundtruth.txt` (TUM). `<t>` is the time
 //! in seconds (`datagen` pads it with zeros so that names sort in time
 //! order, e.g. `0000000010.500000`) or, with 16 digits or more and no
@@ -22,6 +23,7 @@ use image::DynamicImage;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{LocalizeError, Result};
+use crate::sensor_set::RangeSensor;
 
 /// How frames take their images and their points' times.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -95,6 +97,10 @@ pub trait SensorSequence {
     fn world_description(&self) -> Option<PathBuf>;
     /// Scan times in order.
     fn frame_stamps(&self) -> Vec<f64>;
+    /// What gives the 3D points: a LIDAR unless the recording says otherwise.
+    fn range_sensor(&self) -> RangeSensor {
+        RangeSensor::Lidar
+    }
     /// Hands each frame, in time order, to `visit`.
     fn for_each_frame(&self, visit: &mut dyn FnMut(FrameInput) -> Result<()>) -> Result<()>;
 }
@@ -158,12 +164,14 @@ impl RecordedSequence {
         }
         sync.validate().map_err(|e| e.within("sync"))?;
         let calibration = read_calibration(&dir.join("calib.json"))?;
-        let odometry = read_odometry(&dir.join("odom.csv"))?;
-        let imu = read_imu(&dir.join("imu.csv"))?;
-        // A log with a header and no rows would leave the filter blind, not stop it.
-        for (name, empty) in [("odom.csv", odometry.is_empty()), ("imu.csv", imu.is_empty())] {
-            if empty {
-                return Err(error(&dir.join(name), "a header and no rows: the filter needs the samples"));
+        // Either log may be missing (a rig without wheels or IMU); a log
+        // with a header and no rows is a broken recording, not such a rig.
+        let (odom_path, imu_path) = (dir.join("odom.csv"), dir.join("imu.csv"));
+        let odometry = if odom_path.exists() { read_odometry(&odom_path)? } else { Vec::new() };
+        let imu = if imu_path.exists() { read_imu(&imu_path)? } else { Vec::new() };
+        for (path, empty) in [(&odom_path, odometry.is_empty()), (&imu_path, imu.is_empty())] {
+            if empty && path.exists() {
+                return Err(error(path, "a header and no rows: delete the file if the rig has no such sensor"));
             }
         }
         let truth_path = dir.join("groundtruth.txt");

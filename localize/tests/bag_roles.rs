@@ -35,7 +35,9 @@ fn two_candidate_topics_are_an_error_listing_both_until_one_is_named() {
         "{e}"
     );
     let named = BagOptions { lidar_topic: Some("/ouster/points".into()), ..Default::default() };
-    // Past the LIDAR, the next missing role is the one named.
-    let e = find_roles(&recording, &named).unwrap_err().to_string();
-    assert!(e.contains("no sensor_msgs/msg/Imu topic"), "{e}");
+    // A recording of LIDARs alone is a LIDAR-only rig: no IMU, no wheels.
+    let (roles, notes) = find_roles(&recording, &named).unwrap();
+    assert_eq!(recording.topics[roles.lidar].name, "/ouster/points");
+    assert_eq!((roles.imu, roles.odometry), (None, None));
+    assert!(notes.iter().any(|n| n.starts_with("imu") && n.ends_with("none")), "{notes:?}");
 }

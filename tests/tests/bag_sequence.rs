@@ -72,7 +72,7 @@ fn recordings_of_other_tools_find_their_roles_calibration_and_images() {
             .unwrap_or_else(|e| panic!("{name}: {e}"));
         let topics = &bag.recording.topics;
         assert_eq!(topics[bag.roles.lidar].name, "/points");
-        assert_eq!(topics[bag.roles.imu].name, "/imu");
+        assert_eq!(topics[bag.roles.imu.unwrap()].name, "/imu");
         assert_eq!(topics[bag.roles.ground_truth.unwrap()].name, "/ground_truth");
         let c = bag.calibration();
         // base_link -> lidar_link is a translation; the camera is the optical frame.

@@ -155,7 +155,7 @@ fn a_lidar_blackout_and_a_camera_that_stops_leave_the_run_going_and_bounded() {
     let dir = tempfile::tempdir().unwrap();
     let sequence = short_sequence(dir.path(), 30);
     let labels = dir.path().join("sequence/labels.json");
-    let faults = SensorFaults { lidar_gaps: vec![[8.0, 14.0]], camera_stop_s: Some(20.0) };
+    let faults = SensorFaults { lidar_gaps: vec![[8.0, 14.0]], camera_stop_s: Some(20.0), ..SensorFaults::default() };
     let faulty = WithChanges { inner: Box::new(sequence), truth: None, faults };
     let mut corners = CornerSource::labels(&labels, 2.0, 1).unwrap();
     let result = run_sequence(&faulty, &mut corners, &LocalizeConfig::default(), false).unwrap();

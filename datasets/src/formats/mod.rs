@@ -4,6 +4,7 @@
 pub mod calib;
 pub mod cloud;
 pub mod coco;
+pub mod depth_image;
 pub mod lzf;
 pub mod pcd;
 pub mod ply;
@@ -15,6 +16,7 @@ pub mod trajectory;
 pub use calib::{Calibration, read_calibration, write_calibration};
 pub use cloud::{NonFinite, PointCloud, read_cloud};
 pub use coco::{CocoAnnotation, CocoCategory, CocoDataset, CocoImage, corner_categories, read_coco, write_coco};
+pub use depth_image::{DepthImage, read_depth_png};
 pub use pcd::{PcdData, read_pcd, write_pcd};
 pub use ply::{PlyFormat, read_ply, write_ply};
 pub use point_labels::{CocoHalves, PointLabel, coco_halves, labelled_photos, read_point_labels};

@@ -12,8 +12,10 @@ use localize::corner_source::CornerSource;
 use localize::eval::{Alignment, ErrorSummary, compare};
 use localize::levels::LevelMap;
 use localize::pipeline::FrameStatus;
+use localize::rgbd_sequence::RgbdSequence;
 use localize::run::{MapStart, metrics_against, run_sequence_in_map, truth_in_run_frame, write_outputs};
 use localize::sensor_faults::{SensorFaults, WithChanges};
+use localize::sensor_set::{RangeSensor, SensorSet};
 use localize::sequence::{RecordedSequence, SensorSequence};
 
 #[derive(Parser)]
@@ -140,7 +142,8 @@ impl TopicArgs {
 #[command(allow_negative_numbers = true)]
 #[group(id = "input", required = true, multiple = false, args = ["sequence", "bag"])]
 struct RunArgs {
-    /// The sequence folder (cloud/, rgb/, odom.csv, imu.csv, calib.json[, groundtruth.txt]).
+    /// The sequence folder (cloud/, rgb/, [odom.csv], [imu.csv], calib.json[, groundtruth.txt]),
+    /// or an RGB-D folder as published (TUM RGB-D's rgb.txt and depth.txt; 7-Scenes' frame-N files).
     #[arg(long)]
     sequence: Option<PathBuf>,
     /// A ROS recording: a rosbag2 folder, an .mcap, a .db3 or a ROS 1 .bag.
@@ -191,6 +194,12 @@ struct RunArgs {
     /// Simulate a camera that stops: no image from this many seconds after the first scan on.
     #[arg(long, value_name = "SECONDS", value_parser = datasets::cli::non_negative)]
     camera_stop: Option<f64>,
+    /// Leave the recording's IMU out (the rate carries on from the previous motion).
+    #[arg(long)]
+    without_imu: bool,
+    /// Leave the recording's wheel odometry out (the velocity carries on from the previous motion).
+    #[arg(long)]
+    without_wheels: bool,
     #[arg(long, default_value_t = 2.0, value_parser = datasets::cli::non_negative)]
     label_noise_px: f64,
     #[arg(long, default_value_t = 1)]
@@ -398,17 +407,25 @@ fn planes(args: &PlanesArgs) -> Result<()> {
     Ok(())
 }
 
+/// The defaults with the `--config` file at `path` over them.
 fn read_config(path: Option<&Path>) -> Result<LocalizeConfig> {
-    Ok(match path {
-        Some(path) => {
-            let text = datasets::atomic::read_text(path)?;
-            let config: LocalizeConfig = serde_json::from_str(&text)
-                .with_context(|| format!("{}: not a localization config", path.display()))?;
-            config.validate().map_err(|m| anyhow::anyhow!("{}: {m}", path.display()))?;
-            config
-        }
-        None => LocalizeConfig::default(),
-    })
+    match read_config_file(path)? {
+        Some(file) => LocalizeConfig::default().overlaid(&file).map_err(|m| config_error(path, &m)),
+        None => Ok(LocalizeConfig::default()),
+    }
+}
+
+/// A `--config` file's JSON, to lay over the defaults that apply.
+fn read_config_file(path: Option<&Path>) -> Result<Option<serde_json::Value>> {
+    let Some(path) = path else { return Ok(None) };
+    let text = datasets::atomic::read_text(path)?;
+    let file = serde_json::from_str(&text).with_context(|| format!("{}: not a localization config", path.display()))?;
+    Ok(Some(file))
+}
+
+fn config_error(path: Option<&Path>, message: &str) -> anyhow::Error {
+    let name = path.map_or_else(String::new, |p| p.display().to_string());
+    anyhow::anyhow!("{name}: not a localization config: {message}")
 }
 
 fn benchmark(args: &BenchmarkArgs) -> Result<()> {
@@ -444,12 +461,31 @@ fn benchmark(args: &BenchmarkArgs) -> Result<()> {
 fn run(args: &RunArgs) -> Result<()> {
     // Refused before the work, not after it.
     localize::run::check_output_folder(&args.out)?;
-    let mut config = read_config(args.config.as_deref())?;
+    // The defaults follow the recording's sensors, the --config file goes
+    // over them. The file is checked before anything is read, over the
+    // defaults of the kind of 3D sensor (the IMU and wheels, found on
+    // opening, change no range a setting is checked against).
+    let file = read_config_file(args.config.as_deref())?;
+    let range = match &args.sequence {
+        Some(dir) if RgbdSequence::layout_of(dir).is_some() => RangeSensor::DepthCamera,
+        _ => RangeSensor::Lidar,
+    };
+    let assumed = SensorSet { range, imu: true, wheels: true, camera: !args.without_camera };
+    let defaults_over = |sensors: &SensorSet| match &file {
+        Some(file) => sensors.default_config().overlaid(file).map_err(|m| config_error(args.config.as_deref(), &m)),
+        None => Ok(sensors.default_config()),
+    };
+    let mut config = defaults_over(&assumed)?;
     if let Some(t) = args.image_tolerance {
         config.sync.image_tolerance_s = t;
     }
     config.sync.validate().map_err(|m| anyhow::anyhow!("--image-tolerance: {m}"))?;
     let mut sequence: Box<dyn SensorSequence> = match (&args.sequence, &args.bag) {
+        (Some(dir), _) if RgbdSequence::layout_of(dir).is_some() => {
+            let sequence = RgbdSequence::open(dir, &config.depth, config.sync.image_tolerance_s)?;
+            println!("{}: RGB-D folder ({:?} layout)", dir.display(), sequence.layout);
+            Box::new(sequence)
+        }
         (Some(dir), _) => Box::new(RecordedSequence::open_with(dir, &config.sync)?),
         (None, Some(bag)) => {
             let sequence = BagSequence::open(bag, &args.topics.options(args.calib.clone()), &config.sync)?;
@@ -467,10 +503,21 @@ fn run(args: &RunArgs) -> Result<()> {
         }
         None => None,
     };
-    let faults = SensorFaults { lidar_gaps: args.lidar_gap.clone(), camera_stop_s: args.camera_stop };
+    let faults = SensorFaults {
+        lidar_gaps: args.lidar_gap.clone(),
+        camera_stop_s: args.camera_stop,
+        without_imu: args.without_imu,
+        without_wheels: args.without_wheels,
+    };
     if truth.is_some() || !faults.is_empty() {
         sequence = Box::new(WithChanges { inner: sequence, truth, faults });
     }
+    let sensors = SensorSet::of(&*sequence, !args.without_camera);
+    config = defaults_over(&sensors)?;
+    if let Some(t) = args.image_tolerance {
+        config.sync.image_tolerance_s = t;
+    }
+    println!("sensors: {sensors}");
     let mut source = match &args.corners_from_labels {
         _ if args.without_camera => CornerSource::Off,
         Some(labels) => CornerSource::labels(labels, args.label_noise_px, args.seed)?,
@@ -539,7 +586,9 @@ fn run(args: &RunArgs) -> Result<()> {
             m.frames, m.corrected_frames, m.fused_frames, m.mean_total_ms
         );
         println!("{:<22} {:>8} {:>8} {:>8} {:>8}", "", "rmse_x", "rmse_y", "rmse_z", "ate");
-        for (name, t) in [("fused", &m.fused), ("odometry/IMU", &m.odometry_imu)] {
+        // Without odometry or IMU the reference is the start pose held: nothing to show.
+        let reference = (sensors.imu || sensors.wheels).then_some(("odometry/IMU", &m.odometry_imu));
+        for (name, t) in [("fused", &m.fused)].into_iter().chain(reference) {
             for (level, s) in t.levels.iter().map(|l| (l.name.as_str(), &l.errors)).chain([("all", &t.overall)]) {
                 println!(
                     "{:<22} {:>8.4} {:>8.4} {:>8.4} {:>8.4}",
@@ -551,6 +600,11 @@ fn run(args: &RunArgs) -> Result<()> {
                 );
             }
         }
+        let s = &m.fused_se3_aligned;
+        println!(
+            "{:<22} {:>8.4} {:>8.4} {:>8.4} {:>8.4}",
+            "fused, SE3-aligned", s.rmse_x, s.rmse_y, s.rmse_z, s.ate_rmse
+        );
     }
     Ok(())
 }

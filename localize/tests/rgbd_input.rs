@@ -1,0 +1,146 @@
+//! RGB-D folders as sequences: a 7-Scenes-style folder rendered from known
+//! poses of a room is localized from its depth images alone (no wheels, no
+//! IMU, no camera) back onto those poses; the real folders of
+//! `../shared/data` are read as they are published.
+
+use std::path::{Path, PathBuf};
+
+use datasets::math::{Pose3, Vec3};
+use localize::corner_source::CornerSource;
+use localize::rgbd_sequence::{DepthOptions, RgbdLayout, RgbdSequence, optical_from_body};
+use localize::run::{metrics, run_sequence};
+use localize::sensor_set::{RangeSensor, SensorSet};
+use localize::sequence::SensorSequence;
+
+const FX: f64 = 585.0;
+
+/// The depth (metres along the optical axis) of the room seen from
+/// `world_from_optical`: a 6 x 4 x 2.6 m box with a 1 m cube on its floor
+/// and a cabinet against one wall, so that no direction slides.
+fn render(world_from_optical: &Pose3) -> Vec<u16> {
+    let boxes: [([f64; 3], [f64; 3], bool); 3] = [
+        ([-2.0, -2.0, -1.2], [4.0, 2.0, 1.4], true),
+        ([2.0, -1.8, -1.2], [3.0, -0.8, -0.2], false),
+        ([0.5, 1.2, -1.2], [1.5, 2.0, 0.6], false),
+    ];
+    let origin = world_from_optical.translation.vector;
+    let mut depth = vec![0u16; 640 * 480];
+    for v in 0..480 {
+        for u in 0..640 {
+            let ray_optical = Vec3::new((u as f64 - 320.0) / FX, (v as f64 - 240.0) / FX, 1.0);
+            let ray = world_from_optical.rotation * ray_optical;
+            let mut nearest = f64::INFINITY;
+            for (lo, hi, inside) in boxes {
+                // Slab intersection: the exit of the room, the entry of a solid.
+                let (mut enter, mut exit) = (f64::NEG_INFINITY, f64::INFINITY);
+                for k in 0..3 {
+                    let (a, b) = ((lo[k] - origin[k]) / ray[k], (hi[k] - origin[k]) / ray[k]);
+                    enter = enter.max(a.min(b));
+                    exit = exit.min(a.max(b));
+                }
+                let hit = if inside {
+                    exit
+                } else if enter <= exit && enter > 0.0 {
+                    enter
+                } else {
+                    f64::INFINITY
+                };
+                nearest = nearest.min(hit);
+            }
+            // The ray's parameter is the depth: its optical z is 1.
+            if nearest.is_finite() {
+                depth[v * 640 + u] = (nearest * 1000.0).round() as u16;
+            }
+        }
+    }
+    depth
+}
+
+/// The camera's body pose at frame k: forward and sideways, turning and nodding.
+fn body_pose(k: usize) -> Pose3 {
+    let t = k as f64 / 30.0;
+    Pose3::new(Vec3::new(0.4 * t, 0.15 * t * t, 0.05 * t), Vec3::new(0.02 * t, 0.05 * t, 0.3 * t))
+}
+
+fn write_pose(path: &Path, pose: &Pose3) {
+    let m = pose.to_homogeneous();
+    let text: String = (0..4).map(|r| format!("{} {} {} {}\n", m[(r, 0)], m[(r, 1)], m[(r, 2)], m[(r, 3)])).collect();
+    std::fs::write(path, text).unwrap();
+}
+
+/// A 7-Scenes-style folder: every second frame of a 30 Hz recording.
+fn write_seven_scenes(dir: &Path, frames: usize) {
+    let frames_dir = dir.join("frames");
+    std::fs::create_dir_all(&frames_dir).unwrap();
+    std::fs::write(dir.join("camera-intrinsics.txt"), format!("{FX} 0 320\n0 {FX} 240\n0 0 1\n")).unwrap();
+    for k in 0..frames {
+        let n = 2 * k;
+        let world_from_optical = body_pose(n) * optical_from_body().inverse();
+        let depth =
+            image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(640, 480, render(&world_from_optical)).unwrap();
+        depth.save(frames_dir.join(format!("frame-{n:06}.depth.png"))).unwrap();
+        write_pose(&frames_dir.join(format!("frame-{n:06}.pose.txt")), &world_from_optical);
+    }
+}
+
+#[test]
+fn a_rendered_depth_sequence_is_localized_from_depth_alone_onto_its_poses() {
+    let dir = tempfile::tempdir().unwrap();
+    write_seven_scenes(dir.path(), 16);
+    let sequence = RgbdSequence::open(dir.path(), &DepthOptions::default(), 0.0).unwrap();
+    assert_eq!(sequence.layout, RgbdLayout::SevenScenes);
+    assert_eq!(sequence.frame_stamps()[..3], [0.0, 2.0 / 30.0, 4.0 / 30.0]);
+    // The truth is read in the body frame: the pose the frames were rendered from.
+    let truth = sequence.ground_truth().unwrap();
+    let error = truth.poses[5].inverse() * body_pose(10);
+    assert!(error.translation.vector.norm() < 1e-9 && error.rotation.angle() < 1e-6, "{error}");
+    let sensors = SensorSet::of(&sequence, false);
+    assert_eq!((sensors.range, sensors.imu, sensors.wheels), (RangeSensor::DepthCamera, false, false));
+    let config = sensors.default_config();
+    let result = run_sequence(&sequence, &mut CornerSource::Off, &config, false).unwrap();
+    let m = metrics(&sequence, &result).unwrap().expect("the poses overlap the frames");
+    assert_eq!(m.frames, 16);
+    assert_eq!(m.corrected_frames, 15, "every frame after the first is registered");
+    // 0.5 m and 28 degrees of motion, carried by the registration alone.
+    assert!(m.fused.overall.ate_rmse < 0.01, "ATE {} m", m.fused.overall.ate_rmse);
+    // Without registration the carried-on motion would stay where it started.
+    assert!(m.odometry_imu.overall.ate_rmse > 0.1, "{}", m.odometry_imu.overall.ate_rmse);
+}
+
+fn shared(folder: &str) -> PathBuf {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data").join(folder);
+    assert!(dir.is_dir(), "{} is missing: this test reads the real RGB-D data beside the clone", dir.display());
+    dir
+}
+
+#[test]
+fn the_real_seven_scenes_and_tum_folders_read_as_published() {
+    let seven = RgbdSequence::open(&shared("seven_scenes_rgbd"), &DepthOptions::default(), 0.02).unwrap();
+    let stamps = seven.frame_stamps();
+    assert_eq!((stamps.len(), stamps[1], stamps[499]), (500, 2.0 / 30.0, 998.0 / 30.0));
+    assert_eq!(seven.calibration().camera.fx, 585.0);
+    // Frame 0's first pose row is 0.9093 0.2726 -0.3142 -0.3405: the body's
+    // x axis (forward) is the optical z axis, the third column.
+    let first = seven.ground_truth().unwrap().poses[0];
+    assert!((first.translation.vector - Vec3::new(-0.3404563, 0.0164698, 0.2965692)).norm() < 1e-6);
+    let forward = first.rotation * Vec3::x();
+    assert!((forward - Vec3::new(-0.3142243, 0.0452796, 0.9482093)).norm() < 1e-3, "{forward}");
+    let mut first_cloud = None;
+    seven
+        .for_each_frame(&mut |frame| {
+            first_cloud.get_or_insert(frame.cloud.unwrap());
+            Ok(())
+        })
+        .unwrap();
+    // Every fourth pixel of every fourth row within 0.2-4 m, in front of the camera.
+    let cloud = first_cloud.unwrap();
+    assert!(cloud.len() > 15_000 && cloud.len() <= 160 * 120, "{}", cloud.len());
+    assert!(cloud.points.iter().all(|p| p.x >= 0.2 && p.x <= 4.0));
+
+    let tum = RgbdSequence::open(&shared("tum_fr3_cabinet_keyframes"), &DepthOptions::default(), 0.02).unwrap();
+    assert_eq!(tum.layout, RgbdLayout::Tum);
+    assert_eq!(tum.frame_stamps().len(), 58);
+    let c = &tum.calibration().camera;
+    assert_eq!((c.fx, c.fy, c.cx, c.cy), (535.4, 539.2, 320.1, 247.6));
+    assert_eq!(tum.ground_truth().unwrap().stamps[0], 1341841278.8427);
+}
