@@ -28,6 +28,8 @@ use crate::corner_source::CornerSource;
 use crate::error::{LocalizeError, Result};
 use crate::eval::{Alignment, ErrorSummary, compare};
 use crate::run::{RunMetrics, metrics_against, run_sequence, truth_in_run_frame, write_outputs};
+use crate::sensor_faults::{SensorFaults, WithChanges};
+use crate::sensor_set::SensorSet;
 use crate::sequence::RecordedSequence;
 
 /// The LIDAR odometry systems `scripts/lidar_peers.py` runs.
@@ -147,6 +149,8 @@ pub struct BenchmarkRow {
     pub without_camera: ErrorSummary,
     /// The paper's estimator: corners and walls, no scan-to-map registration.
     pub without_scan_match: ErrorSummary,
+    /// The 3D sensor alone: no camera, no IMU, no wheels (as KISS-ICP runs).
+    pub lidar_alone: ErrorSummary,
     /// Frames whose pose the corners, walls or scan corrected.
     pub corrected_frames: usize,
     pub ms_per_frame: f64,
@@ -222,6 +226,8 @@ pub fn run_benchmark(
                 let mut paper = config.clone();
                 paper.scan_match.enabled = false;
                 let without_scan_match = localize_into(&dir, "run-without-scan-match", &sequence, &mut source, &paper)?;
+                bar.set_message(format!("{case} at {speed} m/s: LIDAR alone"));
+                let lidar_alone = lidar_alone_into(&dir, config)?;
                 let ap50 = if measures_ap {
                     let test = dir.join("detection").join("test.json");
                     let set = infer::labeled::load_coco_set(&test, &detector.config.preprocess)?;
@@ -234,6 +240,7 @@ pub fn run_benchmark(
                     odometry_imu: measured.odometry_imu.overall,
                     without_camera: without_camera.fused.overall,
                     without_scan_match: without_scan_match.fused.overall,
+                    lidar_alone: lidar_alone.fused.overall,
                     scans: measured.frames,
                     corrected_frames: measured.corrected_frames,
                     ms_per_frame: measured.mean_total_ms,
@@ -269,6 +276,7 @@ pub fn run_benchmark(
             odometry_imu: record.odometry_imu,
             without_camera: record.without_camera,
             without_scan_match: record.without_scan_match,
+            lidar_alone: record.lidar_alone,
             corrected_frames: record.corrected_frames,
             ms_per_frame: record.ms_per_frame,
             ap50: record.ap50,
@@ -297,6 +305,7 @@ pub struct SequenceRecord {
     pub odometry_imu: ErrorSummary,
     pub without_camera: ErrorSummary,
     pub without_scan_match: ErrorSummary,
+    pub lidar_alone: ErrorSummary,
     pub scans: usize,
     pub corrected_frames: usize,
     pub ms_per_frame: f64,
@@ -326,10 +335,21 @@ impl SequenceRecord {
 
 /// Localizes `sequence` with `source` and `config` into `dir/name` and
 /// returns its metrics.
+/// The sequence of `dir` run with its 3D sensor alone (no camera, IMU or
+/// wheels), with the settings that follow from that over `config`.
+fn lidar_alone_into(dir: &Path, config: &LocalizeConfig) -> Result<RunMetrics> {
+    let inner = RecordedSequence::open_with(&dir.join("sequence"), &config.sync)?;
+    let faults = SensorFaults { without_imu: true, without_wheels: true, ..SensorFaults::default() };
+    let alone = WithChanges { inner: Box::new(inner), truth: None, faults };
+    let mut config = config.clone();
+    SensorSet::of(&alone, false).adapt(&mut config);
+    localize_into(dir, "run-lidar-alone", &alone, &mut CornerSource::Off, &config)
+}
+
 fn localize_into(
     dir: &Path,
     name: &str,
-    sequence: &RecordedSequence,
+    sequence: &dyn crate::sequence::SensorSequence,
     source: &mut CornerSource,
     config: &LocalizeConfig,
 ) -> Result<RunMetrics> {
@@ -414,20 +434,20 @@ pub fn parse_speeds(text: &str) -> std::result::Result<Vec<f64>, String> {
 pub fn markdown(rows: &[BenchmarkRow]) -> String {
     let mut out = String::from(
         "| building | seed | levels | speed m/s | scans | distance m | fused x | fused y | fused z | fused ATE | \
-         without camera ATE | without scan matching ATE | odom/IMU ATE |",
+         without camera ATE | without scan matching ATE | LIDAR alone ATE | odom/IMU ATE |",
     );
     for p in PEERS {
         let _ = write!(out, " {p} x | {p} y | {p} ATE |");
     }
     out.push_str(" corrected | ms/frame | AP@0.5 |\n|");
-    for _ in 0..(13 + 3 * PEERS.len() + 3) {
+    for _ in 0..(14 + 3 * PEERS.len() + 3) {
         out.push_str("---:|");
     }
     out.push('\n');
     for r in rows {
         let _ = write!(
             out,
-            "| {} | {} | {} | {} | {} | {:.1} | {} | {} | {} | {} | {} | {} | {} |",
+            "| {} | {} | {} | {} | {} | {:.1} | {} | {} | {} | {} | {} | {} | {} | {} |",
             r.building,
             r.seed,
             r.levels,
@@ -440,6 +460,7 @@ pub fn markdown(rows: &[BenchmarkRow]) -> String {
             fmt_mm(r.fused.ate_rmse),
             fmt_mm(r.without_camera.ate_rmse),
             fmt_mm(r.without_scan_match.ate_rmse),
+            fmt_mm(r.lidar_alone.ate_rmse),
             fmt_mm(r.odometry_imu.ate_rmse)
         );
         for (_, peer) in &r.peers {
@@ -460,7 +481,7 @@ pub fn markdown(rows: &[BenchmarkRow]) -> String {
 pub fn csv(rows: &[BenchmarkRow]) -> String {
     let mut out = String::from(
         "building,seed,levels,speed_mps,scans,distance_m,fused_rmse_x,fused_rmse_y,fused_rmse_z,fused_ate,\
-         without_camera_ate,without_scan_match_ate,odometry_imu_ate",
+         without_camera_ate,without_scan_match_ate,lidar_alone_ate,odometry_imu_ate",
     );
     for p in PEERS {
         let p = p.replace('-', "_");
@@ -470,7 +491,7 @@ pub fn csv(rows: &[BenchmarkRow]) -> String {
     for r in rows {
         let _ = write!(
             out,
-            "{},{},{},{},{},{:.3},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6}",
+            "{},{},{},{},{},{:.3},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6}",
             r.building,
             r.seed,
             r.levels,
@@ -483,6 +504,7 @@ pub fn csv(rows: &[BenchmarkRow]) -> String {
             r.fused.ate_rmse,
             r.without_camera.ate_rmse,
             r.without_scan_match.ate_rmse,
+            r.lidar_alone.ate_rmse,
             r.odometry_imu.ate_rmse
         );
         for (_, peer) in &r.peers {

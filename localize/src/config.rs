@@ -154,6 +154,8 @@ impl LocalizeConfig {
             ("ekf.ramp_slip_per_s", e.ramp_slip_per_s),
             ("ekf.velocity_change_mps2", e.velocity_change_mps2),
             ("ekf.rate_change_rps2", e.rate_change_rps2),
+            ("ekf.unknown_velocity_mps", e.unknown_velocity_mps),
+            ("ekf.unknown_rate_rps", e.unknown_rate_rps),
         ] {
             non_negative(name, v, 1000.0)?;
         }

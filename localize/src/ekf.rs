@@ -55,6 +55,10 @@ pub struct EkfConfig {
     pub velocity_change_mps2: f64,
     /// Without a gyro, the angular rate carries on likewise.
     pub rate_change_rps2: f64,
+    /// Until two frames have measured a motion, how fast the robot may
+    /// already be moving and turning (standard deviations).
+    pub unknown_velocity_mps: f64,
+    pub unknown_rate_rps: f64,
 }
 
 impl Default for EkfConfig {
@@ -73,6 +77,8 @@ impl Default for EkfConfig {
             ramp_slip_per_s: 0.03,
             velocity_change_mps2: 2.0,
             rate_change_rps2: 3.0,
+            unknown_velocity_mps: 1.0,
+            unknown_rate_rps: 1.0,
         }
     }
 }
@@ -149,12 +155,24 @@ impl Ekf {
         // A carried-on motion drifts as a change of velocity held since it
         // was measured: after t seconds, sigma t^2 / 2 off. The variance
         // added over the step is the growth over it, whatever the steps.
+        let carried_s = motion.measured_at.map_or(0.0, |at| (self.time - at).max(0.0));
         let carried = |sigma: f64| {
-            let (t0, t1) = (motion.carried_s.max(0.0), motion.carried_s.max(0.0) + dt);
+            let (t0, t1) = (carried_s, carried_s + dt);
             sigma * sigma * (t1.powi(4) - t0.powi(4)) / 4.0
         };
-        let sv = if motion.wheels { (c.speed_noise_mps * dt).powi(2) } else { carried(c.velocity_change_mps2) };
-        let sg = if motion.gyro { (c.gyro_noise_rps * dt).powi(2) } else { carried(c.rate_change_rps2) };
+        // Before two frames have measured a motion, the one carried on (none)
+        // is a guess: the robot may already be moving at any speed.
+        let guessed = |sigma: f64| if motion.measured_at.is_none() { (sigma * dt).powi(2) } else { 0.0 };
+        let sv = if motion.wheels {
+            (c.speed_noise_mps * dt).powi(2)
+        } else {
+            carried(c.velocity_change_mps2) + guessed(c.unknown_velocity_mps)
+        };
+        let sg = if motion.gyro {
+            (c.gyro_noise_rps * dt).powi(2)
+        } else {
+            carried(c.rate_change_rps2) + guessed(c.unknown_rate_rps)
+        };
         for k in 0..3 {
             q[(k, k)] = sv;
             q[(3 + k, 3 + k)] = sg;
@@ -311,15 +329,15 @@ pub struct BodyMotion {
     pub velocity: Vec3,
     /// The velocity is the wheels' forward speed: the state's scale applies.
     pub wheels: bool,
-    /// Seconds since a carried-on rate or velocity was measured, at the
-    /// step's start (its uncertainty grows with it).
-    pub carried_s: f64,
+    /// When a carried-on rate or velocity was measured (its uncertainty
+    /// grows with the time since); `None`: nothing measured it yet.
+    pub measured_at: Option<f64>,
 }
 
 impl BodyMotion {
     /// A gyro's rate and the wheels' forward speed.
     pub fn measured(gyro: Vec3, speed: f64) -> Self {
-        Self { rate: gyro, gyro: true, velocity: Vec3::new(speed, 0.0, 0.0), wheels: true, carried_s: 0.0 }
+        Self { rate: gyro, gyro: true, velocity: Vec3::new(speed, 0.0, 0.0), wheels: true, measured_at: None }
     }
 }
 

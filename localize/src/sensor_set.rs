@@ -51,6 +51,13 @@ impl SensorSet {
     /// The default settings for these sensors, before a `--config` file.
     pub fn default_config(&self) -> LocalizeConfig {
         let mut config = LocalizeConfig::default();
+        self.adapt(&mut config);
+        config
+    }
+
+    /// Changes the settings that these sensors decide (`config` is left as
+    /// it is for the paper's rig).
+    pub fn adapt(&self, config: &mut LocalizeConfig) {
         if !self.imu {
             // No gravity: the registration measures height, roll and pitch too.
             config.scan_match.horizontal_only = false;
@@ -74,7 +81,6 @@ impl SensorSet {
             // A handheld camera has no building axis to square walls with.
             config.plane_landmarks.rectilinear_gate_deg = 0.0;
         }
-        config
     }
 }
 

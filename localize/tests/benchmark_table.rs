@@ -79,6 +79,7 @@ fn tables_carry_each_figure_in_its_unit() {
         odometry_imu: summary(0.1, 0.2, 0.2),
         without_camera: summary(0.006, 0.008, 0.024),
         without_scan_match: summary(0.0, 0.03, 0.04),
+        lidar_alone: summary(0.01, 0.02, 0.05),
         corrected_frames: 590,
         ms_per_frame: 71.25,
         ap50: Some(0.81234),
@@ -98,6 +99,7 @@ fn tables_carry_each_figure_in_its_unit() {
     assert_eq!(cell("odom/IMU ATE"), "300.0");
     assert_eq!(cell("without camera ATE"), "26.0");
     assert_eq!(cell("without scan matching ATE"), "50.0");
+    assert_eq!(cell("LIDAR alone ATE"), "54.8");
     assert_eq!(cell("kiss-icp ATE"), "-");
     assert_eq!(cell("genz-icp y"), "30.0");
     assert_eq!(cell("genz-icp ATE"), "70.0");
@@ -111,6 +113,7 @@ fn tables_carry_each_figure_in_its_unit() {
     let cell = |name: &str| cells[header.iter().position(|h| *h == name).unwrap_or_else(|| panic!("{name}"))];
     assert_eq!(cell("fused_ate"), "0.013000");
     assert_eq!(cell("without_scan_match_ate"), "0.050000");
+    assert_eq!(cell("lidar_alone_ate"), "0.054772");
     assert_eq!(cell("kiss_icp_ate"), "");
     assert_eq!(cell("genz_icp_rmse_x"), "0.020000");
     assert_eq!(cell("ap50"), "0.8123");
@@ -124,6 +127,7 @@ fn a_sequence_run_is_reused_only_when_what_made_it_is_the_same() {
         odometry_imu: summary(0.1, 0.2, 0.2),
         without_camera: summary(0.006, 0.008, 0.024),
         without_scan_match: summary(0.0, 0.03, 0.04),
+        lidar_alone: summary(0.01, 0.02, 0.05),
         scans: 600,
         corrected_frames: 590,
         ms_per_frame: 71.25,
