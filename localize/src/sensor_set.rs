@@ -1,10 +1,10 @@
 //! Which sensors a recording has, found from the recording itself, and the
 //! settings that follow from them. The paper's rig (LIDAR, IMU, wheels,
-//! camera) keeps every default; without an IMU nothing holds height, roll
-//! and pitch but the 3D sensor, so the scan registration measures all six
-//! directions; without wheels no floor is known to be level under the
-//! sensor; a depth camera sees metres, not tens of metres, so its scans are
-//! thinned and mapped at a finer scale.
+//! camera) keeps every default. Height, roll and pitch are held by gravity
+//! and by wheels on their floor together; without either, the scan
+//! registration measures all six directions. Without wheels no floor is
+//! known to be level under the sensor. A depth camera sees metres, not tens
+//! of metres, so its scans are thinned and mapped at a finer scale.
 
 use std::fmt;
 
@@ -58,8 +58,10 @@ impl SensorSet {
     /// Changes the settings that these sensors decide (`config` is left as
     /// it is for the paper's rig).
     pub fn adapt(&self, config: &mut LocalizeConfig) {
-        if !self.imu {
-            // No gravity: the registration measures height, roll and pitch too.
+        if !(self.imu && self.wheels) {
+            // Height, roll and pitch are held by gravity and by wheels on
+            // their floor together; without either, the registration
+            // measures them too.
             config.scan_match.horizontal_only = false;
         }
         if !self.wheels {
@@ -118,6 +120,8 @@ mod tests {
         assert!(full.is_full());
         assert_eq!(full.default_config(), LocalizeConfig::default());
         assert_eq!(full.to_string(), "3D LIDAR + IMU + wheel odometry + camera");
+        let with_imu = SensorSet { wheels: false, ..full };
+        assert!(!with_imu.default_config().scan_match.horizontal_only, "no wheels on the floor: z is the scan's");
         let lidar_only = SensorSet { imu: false, wheels: false, camera: false, ..full };
         let config = lidar_only.default_config();
         assert!(!config.scan_match.horizontal_only && !config.level_floor.enabled);
