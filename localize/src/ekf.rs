@@ -4,7 +4,9 @@
 //! estimates the gyro's biases, the wheels' speed scale and the
 //! accelerometer's horizontal biases. Gravity makes the roll and pitch rate
 //! biases observable; the yaw-rate bias, the scale and the accelerometer
-//! biases (which tilt the gravity reading) only pose corrections do.
+//! biases (which tilt the gravity reading) only pose corrections do. A rig
+//! without a gyro or without wheels has the rate or the velocity of its
+//! previous motion carried on instead (`BodyMotion`, `sensor_replay`).
 //!
 //! State: position (3, world), roll, pitch, yaw (ZYX Euler, world from robot),
 //! gyro bias (3, rad/s, body), wheel speed scale (1 = exact), accelerometer

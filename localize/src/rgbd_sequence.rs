@@ -402,25 +402,7 @@ impl SensorSequence for RgbdSequence {
     fn for_each_frame(&self, visit: &mut dyn FnMut(FrameInput) -> Result<()>) -> Result<()> {
         for frame in &self.frames {
             let image = match &frame.image {
-                Some((stamp, path)) => Ok(FrameImage {
-                    stamp: *stamp,
-                    name: path.file_stem().and_then(|s| s.to_str()).unwrap_or_default().to_string(),
-                    image: datasets::atomic::read_image(path).map_err(|e| e.to_string()).and_then(|im| {
-                        let camera = &self.calibration.camera;
-                        if (im.width(), im.height()) == (camera.width, camera.height) {
-                            Ok(im)
-                        } else {
-                            Err(format!(
-                                "{}: image is {}x{}, the camera's is {}x{}",
-                                path.display(),
-                                im.width(),
-                                im.height(),
-                                camera.width,
-                                camera.height
-                            ))
-                        }
-                    }),
-                }),
+                Some((stamp, path)) => Ok(FrameImage::read(*stamp, path, &self.calibration.camera)),
                 None => Err(format!(
                     "no colour image within {} s of depth image {:.6}",
                     self.image_tolerance_s, frame.stamp

@@ -50,9 +50,9 @@ impl<'a> SensorReplay<'a> {
         self.previous = PreviousMotion { rate, velocity, at: Some(to.1) };
     }
 
-    /// The motion of a step: the wheels' speed and
-    /// the gyro's rate where measured, the previous motion's otherwise.
-    fn motion_at(&self, gyro: Option<Vec3>, speed: Option<f64>) -> BodyMotion {
+    /// The motion of a step: the wheels' speed and the gyro's rate where
+    /// measured, the previous motion's otherwise.
+    fn motion(&self, gyro: Option<Vec3>, speed: Option<f64>) -> BodyMotion {
         let (rate, is_gyro) = match gyro {
             Some(g) => (g, true),
             None => (self.previous.rate, false),
@@ -79,7 +79,7 @@ impl<'a> SensorReplay<'a> {
             let gyro = Vec3::from(sample.gyro);
             let dt = sample.timestamp - ekf.time;
             let speed = self.speed_at(ekf.time + 0.5 * dt.max(0.0));
-            ekf.predict_motion(&self.motion_at(Some(gyro), speed), dt);
+            ekf.predict_motion(&self.motion(Some(gyro), speed), dt);
             ekf.update_gravity(&Vec3::from(sample.accel));
             self.next_imu += 1;
         }
@@ -90,7 +90,7 @@ impl<'a> SensorReplay<'a> {
             for k in first..last {
                 let t = self.odometry[k].timestamp;
                 let speed = self.speed_at(0.5 * (ekf.time + t));
-                ekf.predict_motion(&self.motion_at(None, speed), t - ekf.time);
+                ekf.predict_motion(&self.motion(None, speed), t - ekf.time);
             }
         }
         if time > ekf.time {
@@ -98,7 +98,7 @@ impl<'a> SensorReplay<'a> {
             let last = self.next_imu.checked_sub(1).map(|k| Vec3::from(self.imu[k].gyro));
             let gyro = if self.imu.is_empty() { None } else { Some(last.unwrap_or_default()) };
             let speed = self.speed_at(if self.imu.is_empty() { 0.5 * (ekf.time + time) } else { ekf.time });
-            ekf.predict_motion(&self.motion_at(gyro, speed), time - ekf.time);
+            ekf.predict_motion(&self.motion(gyro, speed), time - ekf.time);
         }
     }
 }

@@ -1,12 +1,12 @@
 //! What localization reads, whatever the recording: the calibration, the
 //! odometry and IMU logs, the ground truth, and the frames (a LIDAR scan
-//! each, with the nearest camera image within a tolerance). Two sources
-//! give it: a sequence folder (here) and a ROS bag (`bag_sequence`).
+//! each, with the nearest camera image within a tolerance). Three sources
+//! give it: a sequence folder (here), a ROS bag (`bag_sequence`) and an
+//! RGB-D folder (`rgbd_sequence`).
 //!
 //! The folder layout (`datagen` writes it, DESIGN.md documents it):
 //! `cloud/<t>.pcd|ply|bin`, `rgb/<t>.png|jpg`, `odom.csv` and `imu.csv` (each
-//! optional),
-//! `calib.json` and, when known, `groundtruth.txt` (TUM). `<t>` is the time
+//! optional), `calib.json` and, when known, `groundtruth.txt` (TUM). `<t>` is the time
 //! in seconds (`datagen` pads it with zeros so that names sort in time
 //! order, e.g. `0000000010.500000`) or, with 16 digits or more and no
 //! point, in nanoseconds; the clouds and the images keep their own clocks.
@@ -73,6 +73,30 @@ pub struct FrameImage {
     /// The key of the image for labels (`--corners-from-labels`): its file stem.
     pub name: String,
     pub image: std::result::Result<DynamicImage, String>,
+}
+
+impl FrameImage {
+    /// The image file at `path`, taken at `stamp`, which must be of
+    /// `camera`'s size: corners of an image of another size would land on
+    /// the wrong rays.
+    pub fn read(stamp: f64, path: &Path, camera: &datasets::camera::PinholeCamera) -> Self {
+        let image = datasets::atomic::read_image(path).map_err(|e| e.to_string()).and_then(|im| {
+            if (im.width(), im.height()) == (camera.width, camera.height) {
+                Ok(im)
+            } else {
+                Err(format!(
+                    "{}: image is {}x{}, the calibration's camera is {}x{}",
+                    path.display(),
+                    im.width(),
+                    im.height(),
+                    camera.width,
+                    camera.height
+                ))
+            }
+        });
+        let name = path.file_stem().and_then(|s| s.to_str()).unwrap_or_default().to_string();
+        Self { stamp, name, image }
+    }
 }
 
 /// One frame as the pipeline gets it.
@@ -234,26 +258,7 @@ impl SensorSequence for RecordedSequence {
         for frame in &self.frames {
             let cloud = read_cloud(&frame.cloud, NonFinite::Drop).map_err(|e| e.to_string());
             let image = match &frame.image {
-                Some(file) => Ok(FrameImage {
-                    stamp: file.stamp,
-                    name: file.path.file_stem().and_then(|s| s.to_str()).unwrap_or_default().to_string(),
-                    image: datasets::atomic::read_image(&file.path).map_err(|e| e.to_string()).and_then(|im| {
-                        // Corners of an image of another size would land on the wrong rays.
-                        let camera = &self.calibration.camera;
-                        if (im.width(), im.height()) == (camera.width, camera.height) {
-                            Ok(im)
-                        } else {
-                            Err(format!(
-                                "{}: image is {}x{}, the calibration's camera is {}x{}",
-                                file.path.display(),
-                                im.width(),
-                                im.height(),
-                                camera.width,
-                                camera.height
-                            ))
-                        }
-                    }),
-                }),
+                Some(file) => Ok(FrameImage::read(file.stamp, &file.path, &self.calibration.camera)),
                 None => Err(format!("no image within {} s of scan {:.6}", self.image_tolerance_s, frame.stamp)),
             };
             visit(FrameInput { stamp: frame.stamp, cloud, image })?;
