@@ -19,6 +19,8 @@ use datasets::recording::{RawMessage, Recording};
 use datasets::undistort::Undistorter;
 
 use crate::error::{LocalizeError, Result};
+use crate::rgbd_sequence::{DepthOptions, optical_from_body};
+use crate::sensor_set::RangeSensor;
 use crate::sequence::{FrameImage, FrameInput, SensorSequence, SyncConfig, nearest_within};
 
 /// Which topics and frames to use; `None` finds the topic by its type.
@@ -30,6 +32,10 @@ pub struct BagOptions {
     pub imu_topic: Option<String>,
     pub odom_topic: Option<String>,
     pub gt_topic: Option<String>,
+    /// A depth image topic (`sensor_msgs/Image`) as the 3D sensor.
+    pub depth_topic: Option<String>,
+    /// How a depth image becomes a scan.
+    pub depth: DepthOptions,
     /// The robot's frame (`base_link` when not given).
     pub base_frame: Option<String>,
     /// A `calib.json` that replaces the recording's calibration.
@@ -39,7 +45,11 @@ pub struct BagOptions {
 /// The topic (index into the recording's topics) of each role.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Roles {
+    /// The 3D sensor's topic: a LIDAR's clouds or a depth camera's images.
     pub lidar: usize,
+    pub range: RangeSensor,
+    /// The depth camera's camera_info (its intrinsics), for a depth camera.
+    pub depth_info: Option<usize>,
     pub image: Option<usize>,
     pub camera_info: Option<usize>,
     pub imu: Option<usize>,
@@ -104,6 +114,12 @@ pub fn find_roles(recording: &Recording, options: &BagOptions) -> Result<(Roles,
     let non_empty = |kinds: &[MessageKind]| -> Vec<usize> {
         kinds_of(recording, kinds).into_iter().filter(|&k| recording.topics[k].count > 0).collect()
     };
+    // A depth camera's images are Image topics named so (`/camera/depth/image_raw`,
+    // `/camera/aligned_depth_to_color/image_raw`); the others are the camera's.
+    let is_depth = |k: &usize| recording.topics[*k].name.contains("depth");
+    let depth_candidates: Vec<usize> = non_empty(&[Image]).into_iter().filter(is_depth).collect();
+    let depth =
+        pick(recording, "depth camera", "--depth-topic", options.depth_topic.as_deref(), &[Image], depth_candidates)?;
     let lidar = pick(
         recording,
         "LIDAR",
@@ -111,27 +127,36 @@ pub fn find_roles(recording: &Recording, options: &BagOptions) -> Result<(Roles,
         options.lidar_topic.as_deref(),
         &[PointCloud2],
         non_empty(&[PointCloud2]),
-    )?
-    .ok_or_else(|| bag_error(recording, "no sensor_msgs/msg/PointCloud2 topic: localization needs a LIDAR"))?;
-    let image = pick(
-        recording,
-        "camera",
-        "--image-topic",
-        options.image_topic.as_deref(),
-        &[Image, CompressedImage],
-        non_empty(&[Image, CompressedImage]),
     )?;
-    // The camera_info of the image's namespace when there are several.
-    let infos = non_empty(&[CameraInfo]);
-    let same_namespace: Vec<usize> = match image {
-        Some(i) if infos.len() > 1 => {
-            let ns = |name: &str| name.rsplit_once('/').map_or(String::new(), |(a, _)| a.to_string());
-            let image_ns = ns(&recording.topics[i].name);
-            let matching: Vec<usize> =
-                infos.iter().copied().filter(|&k| image_ns.starts_with(&ns(&recording.topics[k].name))).collect();
-            if matching.is_empty() { infos.clone() } else { matching }
+    // A LIDAR is the 3D sensor when there is one, unless a depth topic is named.
+    let (lidar, range) = match (lidar, depth) {
+        (_, Some(d)) if options.depth_topic.is_some() => (d, RangeSensor::DepthCamera),
+        (Some(l), _) => (l, RangeSensor::Lidar),
+        (None, Some(d)) => (d, RangeSensor::DepthCamera),
+        (None, None) => {
+            return Err(bag_error(
+                recording,
+                "no sensor_msgs/msg/PointCloud2 topic and no depth image topic: localization needs a 3D sensor",
+            ));
         }
-        _ => infos.clone(),
+    };
+    let colour: Vec<usize> =
+        non_empty(&[Image, CompressedImage]).into_iter().filter(|k| !is_depth(k) && *k != lidar).collect();
+    let image =
+        pick(recording, "camera", "--image-topic", options.image_topic.as_deref(), &[Image, CompressedImage], colour)?;
+    // The camera_info of a topic's namespace when there are several.
+    let infos = non_empty(&[CameraInfo]);
+    let same_namespace = |topic: Option<usize>| -> Vec<usize> {
+        match topic {
+            Some(i) if infos.len() > 1 => {
+                let ns = |name: &str| name.rsplit_once('/').map_or(String::new(), |(a, _)| a.to_string());
+                let image_ns = ns(&recording.topics[i].name);
+                let matching: Vec<usize> =
+                    infos.iter().copied().filter(|&k| image_ns.starts_with(&ns(&recording.topics[k].name))).collect();
+                if matching.is_empty() { infos.clone() } else { matching }
+            }
+            _ => infos.clone(),
+        }
     };
     let camera_info = pick(
         recording,
@@ -139,8 +164,15 @@ pub fn find_roles(recording: &Recording, options: &BagOptions) -> Result<(Roles,
         "--camera-info-topic",
         options.camera_info_topic.as_deref(),
         &[CameraInfo],
-        same_namespace,
+        same_namespace(image),
     )?;
+    let depth_info = match range {
+        RangeSensor::DepthCamera => {
+            let info = pick(recording, "depth camera_info", "", None, &[CameraInfo], same_namespace(Some(lidar)))?;
+            Some(info.ok_or_else(|| bag_error(recording, "the depth images have no sensor_msgs/msg/CameraInfo topic"))?)
+        }
+        RangeSensor::Lidar => None,
+    };
     // Either may be missing: the previous motion then carries on (`SensorReplay`).
     let imu = pick(recording, "IMU", "--imu-topic", options.imu_topic.as_deref(), &[Imu], non_empty(&[Imu]))?;
     let odometry = pick(
@@ -170,14 +202,17 @@ pub fn find_roles(recording: &Recording, options: &BagOptions) -> Result<(Roles,
         }
         None => format!("{role:<12} none"),
     };
-    notes.push(describe("lidar", Some(lidar)));
+    notes.push(describe(if range == RangeSensor::Lidar { "lidar" } else { "depth camera" }, Some(lidar)));
+    if depth_info.is_some() {
+        notes.push(describe("depth info", depth_info));
+    }
     notes.push(describe("camera", image));
     notes.push(describe("camera_info", camera_info));
     notes.push(describe("imu", imu));
     notes.push(describe("odometry", odometry));
     notes.push(describe("ground truth", ground_truth));
     notes.push(describe("tf_static", tf_static));
-    Ok((Roles { lidar, image, camera_info, imu, odometry, ground_truth, tf_static, tf }, notes))
+    Ok((Roles { lidar, range, depth_info, image, camera_info, imu, odometry, ground_truth, tf_static, tf }, notes))
 }
 
 /// A scan or an image: its header stamp and its message index on its topic.
@@ -202,6 +237,9 @@ pub struct BagSequence {
     images: Vec<Stamped>,
     pairs: Vec<Option<usize>>,
     undistort: Option<Undistorter>,
+    /// The depth camera's intrinsics, when it is the 3D sensor.
+    depth_camera: Option<PinholeCamera>,
+    depth: DepthOptions,
     tolerance_s: f64,
 }
 
@@ -210,6 +248,7 @@ pub struct BagSequence {
 struct FirstPass {
     tf: TfTree,
     camera_info: Option<camera_info::CameraInfo>,
+    depth_info: Option<camera_info::CameraInfo>,
     lidar_frame: Option<String>,
     image_frame: Option<String>,
     imu_frame: Option<String>,
@@ -251,6 +290,24 @@ impl BagSequence {
         }
         let base = options.base_frame.clone().unwrap_or_else(|| "base_link".to_string());
         let (calibration, undistort) = Self::calibration(&recording, &roles, &pass, &base, options, &mut notes)?;
+        let depth_camera = match (roles.range, &pass.depth_info) {
+            (RangeSensor::Lidar, _) => None,
+            (RangeSensor::DepthCamera, None) => {
+                return Err(bag_error(&recording, "the depth camera's camera_info topic has no messages"));
+            }
+            (RangeSensor::DepthCamera, Some(info)) => {
+                // Points through a pinhole that the images do not follow would be bent.
+                if !info.is_undistorted() {
+                    return Err(bag_error(
+                        &recording,
+                        format!("the depth camera_info has distortion {:?}: depth images must be rectified", info.d),
+                    ));
+                }
+                let camera = info.raw_camera();
+                camera.validate().map_err(|why| bag_error(&recording, format!("depth camera_info: {why}")))?;
+                Some(camera)
+            }
+        };
         let robot_from_imu = match &pass.imu_frame {
             Some(frame) if !frame.is_empty() && (options.calib.is_none() || !pass.tf.is_empty()) => {
                 pass.tf.lookup(&base, frame, false).or_else(|| pass.tf.lookup(&base, frame, true)).ok_or_else(|| {
@@ -306,17 +363,20 @@ impl BagSequence {
             images,
             pairs,
             undistort,
+            depth_camera,
+            depth: options.depth.clone(),
             tolerance_s: sync.image_tolerance_s,
         })
     }
 
     fn first_pass(recording: &Recording, roles: &Roles) -> Result<FirstPass> {
         let mut pass = FirstPass::default();
-        let wanted: Vec<usize> = [Some(roles.lidar), roles.image, roles.camera_info, roles.imu, roles.odometry]
-            .into_iter()
-            .chain([roles.ground_truth, roles.tf_static, roles.tf])
-            .flatten()
-            .collect();
+        let wanted: Vec<usize> =
+            [Some(roles.lidar), roles.image, roles.camera_info, roles.depth_info, roles.imu, roles.odometry]
+                .into_iter()
+                .chain([roles.ground_truth, roles.tf_static, roles.tf])
+                .flatten()
+                .collect();
         let truth_kind = roles.ground_truth.and_then(|k| recording.topics[k].kind());
         recording.read(&wanted, &mut |m| {
             let header = || recording.decode(&m, |r| r.header());
@@ -332,6 +392,10 @@ impl BagSequence {
                 let h = header()?;
                 pass.images.push(Stamped { stamp: h.stamp_s(), index: m.index });
                 pass.image_frame.get_or_insert(h.frame_id);
+            } else if Some(m.topic) == roles.depth_info {
+                if pass.depth_info.is_none() {
+                    pass.depth_info = Some(recording.decode(&m, camera_info::camera_info)?);
+                }
             } else if Some(m.topic) == roles.camera_info {
                 if pass.camera_info.is_none() {
                     pass.camera_info = Some(recording.decode(&m, camera_info::camera_info)?);
@@ -430,7 +494,31 @@ impl BagSequence {
             "frames       robot `{base}`, LIDAR `{lidar_frame}`, camera `{}`",
             pass.image_frame.as_deref().unwrap_or("-")
         ));
+        // A depth camera's "LIDAR" frame is its body frame (x forward, z up),
+        // in which its points are given; its images are in the optical frame.
+        let (camera_from_lidar, robot_from_lidar) = match roles.range {
+            RangeSensor::DepthCamera => {
+                (camera_from_lidar * optical_from_body(), robot_from_lidar * optical_from_body())
+            }
+            RangeSensor::Lidar => (camera_from_lidar, robot_from_lidar),
+        };
         Ok((Calibration { camera, camera_from_lidar, robot_from_lidar }, undistort))
+    }
+
+    /// A depth image message as a scan in the depth camera's body frame.
+    fn depth_cloud(
+        &self,
+        m: &RawMessage<'_>,
+        camera: &PinholeCamera,
+    ) -> std::result::Result<datasets::formats::PointCloud, String> {
+        let depth = self.recording.decode(m, image::depth_image).map_err(|e| e.to_string())?.depth;
+        if (depth.width, depth.height) != (camera.width, camera.height) {
+            return Err(format!(
+                "topic {}, message {}: depth image is {}x{}, its camera_info says {}x{}",
+                self.recording.topics[m.topic].name, m.index, depth.width, depth.height, camera.width, camera.height
+            ));
+        }
+        Ok(crate::rgbd_sequence::depth_scan(&depth, camera, &self.depth))
     }
 
     fn decode_image(&self, m: &RawMessage<'_>) -> std::result::Result<::image::DynamicImage, String> {
@@ -480,6 +568,9 @@ impl SensorSequence for BagSequence {
     }
     fn frame_stamps(&self) -> Vec<f64> {
         self.scans.iter().map(|s| s.stamp).collect()
+    }
+    fn range_sensor(&self) -> RangeSensor {
+        self.roles.range
     }
 
     /// One pass over the LIDAR and camera topics in file order: a scan waits
@@ -538,8 +629,12 @@ impl SensorSequence for BagSequence {
         let outcome = self.recording.read(&wanted, &mut |m| {
             if m.topic == self.roles.lidar {
                 let Some(&k) = scan_of.get(&m.index) else { return Ok(()) };
-                let cloud =
-                    self.recording.decode(&m, point_cloud::point_cloud2).map(|c| c.cloud).map_err(|e| e.to_string());
+                let cloud = match &self.depth_camera {
+                    Some(camera) => self.depth_cloud(&m, camera),
+                    None => {
+                        self.recording.decode(&m, point_cloud::point_cloud2).map(|c| c.cloud).map_err(|e| e.to_string())
+                    }
+                };
                 pending.push_back((k, cloud));
             } else if let Some(&j) = image_slot.get(&m.index)
                 && image_users.get(&m.index).is_some_and(|&n| n > 0)

@@ -20,7 +20,9 @@
 use std::path::{Path, PathBuf};
 
 use datasets::camera::PinholeCamera;
-use datasets::formats::{Calibration, ImuSample, OdometrySample, PointCloud, Trajectory, read_depth_png, read_tum};
+use datasets::formats::{
+    Calibration, DepthImage, ImuSample, OdometrySample, PointCloud, Trajectory, read_depth_png, read_tum,
+};
 use datasets::math::{Pose3, Rot3};
 use nalgebra::{Matrix3, Point3};
 use serde::{Deserialize, Serialize};
@@ -234,15 +236,19 @@ impl RgbdSequence {
                 camera.height
             ));
         }
-        let body_from_optical = optical_from_body().inverse();
-        let o = &self.options;
-        let points = depth
-            .points(camera, o.stride, o.near_m, o.far_m)
-            .into_iter()
-            .map(|p| (body_from_optical * p.cast::<f64>()).cast::<f32>())
-            .collect::<Vec<Point3<f32>>>();
-        Ok(PointCloud::new(points, None))
+        Ok(depth_scan(&depth, camera, &self.options))
     }
+}
+
+/// The scan of a depth image: its points in the depth camera's body frame.
+pub fn depth_scan(depth: &DepthImage, camera: &PinholeCamera, options: &DepthOptions) -> PointCloud {
+    let body_from_optical = optical_from_body().inverse();
+    let points = depth
+        .points(camera, options.stride, options.near_m, options.far_m)
+        .into_iter()
+        .map(|p| (body_from_optical * p.cast::<f64>()).cast::<f32>())
+        .collect::<Vec<Point3<f32>>>();
+    PointCloud::new(points, None)
 }
 
 /// The calibration of an RGB-D camera whose colour image is registered to

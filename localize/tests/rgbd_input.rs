@@ -144,3 +144,62 @@ fn the_real_seven_scenes_and_tum_folders_read_as_published() {
     assert_eq!((c.fx, c.fy, c.cx, c.cy), (535.4, 539.2, 320.1, 247.6));
     assert_eq!(tum.ground_truth().unwrap().stamps[0], 1341841278.8427);
 }
+
+/// The rendered room as a ROS 2 recording: 16UC1 depth images with their
+/// camera_info, the depth camera's place on the robot in /tf_static and the
+/// robot's true poses, no LIDAR, IMU, wheels or colour camera.
+fn write_depth_mcap(path: &Path, frames: usize) {
+    use datasets::recording::mcap_export::{camera_info, depth_image_mm, pose_stamped, ros2_schema, tf_message};
+    let file = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
+    let mut writer = mcap::WriteOptions::new().profile("ros2").create(file).unwrap();
+    let mut channel = |topic: &str, type_name: &str| {
+        let schema = writer.add_schema(type_name, "ros2msg", ros2_schema(type_name).unwrap().as_bytes()).unwrap();
+        writer.add_channel(schema, topic, "cdr", &std::collections::BTreeMap::new()).unwrap()
+    };
+    let depth = channel("/camera/depth/image_raw", "sensor_msgs/msg/Image");
+    let info = channel("/camera/depth/camera_info", "sensor_msgs/msg/CameraInfo");
+    let tf = channel("/tf_static", "tf2_msgs/msg/TFMessage");
+    let truth = channel("/ground_truth", "geometry_msgs/msg/PoseStamped");
+    let calib = datasets::formats::Calibration {
+        camera: datasets::camera::PinholeCamera { width: 640, height: 480, fx: FX, fy: FX, cx: 320.0, cy: 240.0 },
+        camera_from_lidar: Pose3::identity(),
+        robot_from_lidar: Pose3::identity(),
+    };
+    let mut sequence = 0;
+    let mut write = |writer: &mut mcap::Writer<_>, channel_id: u16, t: i64, data: &[u8]| {
+        sequence += 1;
+        let header = mcap::records::MessageHeader { channel_id, sequence, log_time: t as u64, publish_time: t as u64 };
+        writer.write_to_known_channel(&header, data).unwrap();
+    };
+    let optical = "camera_depth_optical_frame";
+    write(&mut writer, tf, 0, &tf_message(&[(0, "base_link", optical, optical_from_body().inverse())]));
+    for k in 0..frames {
+        let t = (k as f64 * 2.0 / 30.0 * 1e9).round() as i64;
+        let body = body_pose(2 * k);
+        let millimetres = render(&(body * optical_from_body().inverse()));
+        write(&mut writer, info, t, &camera_info(t, optical, &calib));
+        write(&mut writer, depth, t, &depth_image_mm(t, optical, 640, 480, &millimetres));
+        write(&mut writer, truth, t, &pose_stamped(t, "map", &body));
+    }
+    writer.finish().unwrap();
+}
+
+#[test]
+fn a_recording_of_depth_images_alone_is_localized_as_the_folder_is() {
+    use localize::bag_sequence::{BagOptions, BagSequence};
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("depth.mcap");
+    write_depth_mcap(&path, 16);
+    let bag = BagSequence::open(&path, &BagOptions::default(), &localize::sequence::SyncConfig::default()).unwrap();
+    assert_eq!(bag.range_sensor(), RangeSensor::DepthCamera, "{:?}", bag.notes);
+    assert_eq!(bag.recording.topics[bag.roles.lidar].name, "/camera/depth/image_raw");
+    assert_eq!((bag.roles.image, bag.roles.imu, bag.roles.odometry), (None, None, None));
+    // base_link is the depth camera's body: the "LIDAR" frame is the robot's.
+    let c = bag.calibration();
+    assert!(c.robot_from_lidar.translation.vector.norm() < 1e-12 && c.robot_from_lidar.rotation.angle() < 1e-9);
+    let sensors = SensorSet::of(&bag, false);
+    let result = run_sequence(&bag, &mut CornerSource::Off, &sensors.default_config(), false).unwrap();
+    let m = metrics(&bag, &result).unwrap().expect("the bag's /ground_truth overlaps the frames");
+    assert_eq!((m.frames, m.corrected_frames), (16, 15));
+    assert!(m.fused.overall.ate_rmse < 0.01, "ATE {} m", m.fused.overall.ate_rmse);
+}

@@ -52,6 +52,13 @@ fn schemas() -> Vec<(&'static str, String)> {
             ),
         ),
         (
+            "sensor_msgs/msg/Image",
+            schema(
+                "std_msgs/Header header\nuint32 height\nuint32 width\nstring encoding\nuint8 is_bigendian\nuint32 step\nuint8[] data\n",
+                &[HEADER, TIME],
+            ),
+        ),
+        (
             "sensor_msgs/msg/CompressedImage",
             schema("std_msgs/Header header\nstring format\nuint8[] data\n", &[HEADER, TIME]),
         ),
@@ -143,6 +150,25 @@ pub fn point_cloud2(stamp_ns: i64, frame: &str, cloud: &crate::formats::PointClo
     }
     w.bytes(&data);
     w.u8(1);
+    w.finish()
+}
+
+/// The `ros2msg` schema text of one of the types written here.
+pub fn ros2_schema(type_name: &str) -> Option<String> {
+    schemas().into_iter().find(|(name, _)| *name == type_name).map(|(_, text)| text)
+}
+
+/// A `16UC1` depth image (millimetres), as RGB-D drivers publish it.
+pub fn depth_image_mm(stamp_ns: i64, frame: &str, width: u32, height: u32, millimetres: &[u16]) -> Vec<u8> {
+    let mut w = CdrWriter::new();
+    w.header(&header(stamp_ns, frame));
+    w.u32(height);
+    w.u32(width);
+    w.string("16UC1");
+    w.u8(0);
+    w.u32(2 * width);
+    let data: Vec<u8> = millimetres.iter().flat_map(|v| v.to_le_bytes()).collect();
+    w.bytes(&data);
     w.finish()
 }
 

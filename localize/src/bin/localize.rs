@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 use datasets::formats::read_trajectory;
-use localize::bag_sequence::BagSequence;
+use localize::bag_sequence::{BagOptions, BagSequence};
 use localize::config::LocalizeConfig;
 use localize::corner_source::CornerSource;
 use localize::eval::{Alignment, ErrorSummary, compare};
@@ -118,6 +118,9 @@ struct TopicArgs {
     /// A PoseStamped, PoseWithCovarianceStamped or Odometry topic with the ground truth.
     #[arg(long)]
     gt_topic: Option<String>,
+    /// A depth image topic (16UC1 in mm or 32FC1 in m) as the 3D sensor, instead of a LIDAR.
+    #[arg(long)]
+    depth_topic: Option<String>,
     /// The robot's TF frame.
     #[arg(long, default_value = "base_link")]
     base_frame: String,
@@ -132,6 +135,8 @@ impl TopicArgs {
             imu_topic: self.imu_topic.clone(),
             odom_topic: self.odom_topic.clone(),
             gt_topic: self.gt_topic.clone(),
+            depth_topic: self.depth_topic.clone(),
+            depth: Default::default(),
             base_frame: Some(self.base_frame.clone()),
             calib,
         }
@@ -468,6 +473,7 @@ fn run(args: &RunArgs) -> Result<()> {
     let file = read_config_file(args.config.as_deref())?;
     let range = match &args.sequence {
         Some(dir) if RgbdSequence::layout_of(dir).is_some() => RangeSensor::DepthCamera,
+        _ if args.topics.depth_topic.is_some() => RangeSensor::DepthCamera,
         _ => RangeSensor::Lidar,
     };
     let assumed = SensorSet { range, imu: true, wheels: true, camera: !args.without_camera };
@@ -488,7 +494,8 @@ fn run(args: &RunArgs) -> Result<()> {
         }
         (Some(dir), _) => Box::new(RecordedSequence::open_with(dir, &config.sync)?),
         (None, Some(bag)) => {
-            let sequence = BagSequence::open(bag, &args.topics.options(args.calib.clone()), &config.sync)?;
+            let options = BagOptions { depth: config.depth.clone(), ..args.topics.options(args.calib.clone()) };
+            let sequence = BagSequence::open(bag, &options, &config.sync)?;
             println!("{}: {}", bag.display(), sequence.recording.format);
             sequence.notes.iter().for_each(|n| println!("  {n}"));
             Box::new(sequence)

@@ -3,6 +3,7 @@
 
 use image::{DynamicImage, ImageBuffer, Luma, Rgb, Rgba};
 
+use crate::formats::DepthImage;
 use crate::recording::messages::ensure;
 use crate::recording::wire::{Header, WireReader, WireResult, wire_error};
 
@@ -77,6 +78,54 @@ pub fn image(r: &mut dyn WireReader<'_>) -> WireResult<ImageMessage> {
     Ok(ImageMessage { header, image })
 }
 
+/// A depth image message (`16UC1` in millimetres, `32FC1` in metres).
+#[derive(Debug, Clone)]
+pub struct DepthMessage {
+    pub header: Header,
+    pub depth: DepthImage,
+}
+
+/// `sensor_msgs/Image` holding depth, as RGB-D drivers publish it: `16UC1`
+/// (or `mono16`) in millimetres, `32FC1` in metres; 0 or NaN = no reading.
+pub fn depth_image(r: &mut dyn WireReader<'_>) -> WireResult<DepthMessage> {
+    let header = r.header()?;
+    let height = r.u32()?;
+    let width = r.u32()?;
+    let encoding = r.string()?;
+    let big_endian = r.u8()? != 0;
+    let step = r.u32()? as usize;
+    let data = r.byte_sequence()?;
+    let bpp = match encoding.as_str() {
+        "16UC1" | "mono16" => 2,
+        "32FC1" => 4,
+        other => {
+            return Err(wire_error(format!("depth encoding `{other}` is not supported (16UC1 in mm, 32FC1 in m)")));
+        }
+    };
+    ensure(width > 0 && height > 0 && width <= MAX_SIDE && height <= MAX_SIDE, || {
+        format!("image size {width}x{height} is empty or larger than {MAX_SIDE} on a side")
+    })?;
+    let (w, h) = (width as usize, height as usize);
+    ensure(step >= w * bpp, || format!("step {step} is less than width {width} x {bpp} bytes"))?;
+    ensure(data.len() >= step * (h - 1) + w * bpp, || {
+        format!("{width}x{height} {encoding} with step {step} needs {} bytes, the message has {}", step * h, data.len())
+    })?;
+    let mut metres = Vec::with_capacity(w * h);
+    for y in 0..h {
+        for b in data[y * step..y * step + w * bpp].chunks_exact(bpp) {
+            let value = if bpp == 2 {
+                let mm = if big_endian { u16::from_be_bytes([b[0], b[1]]) } else { u16::from_le_bytes([b[0], b[1]]) };
+                f32::from(mm) / 1000.0
+            } else {
+                let bytes = [b[0], b[1], b[2], b[3]];
+                if big_endian { f32::from_be_bytes(bytes) } else { f32::from_le_bytes(bytes) }
+            };
+            metres.push(if value > 0.0 && value.is_finite() { value } else { f32::NAN });
+        }
+    }
+    Ok(DepthMessage { header, depth: DepthImage { width, height, metres } })
+}
+
 pub fn compressed_image(r: &mut dyn WireReader<'_>) -> WireResult<ImageMessage> {
     let header = r.header()?;
     let format = r.string()?;
@@ -133,5 +182,21 @@ mod tests {
         // Data shorter than height x step (less the last row's padding) is refused.
         let short = decode(Encoding::Cdr, &message("rgb8", false, &[1, 2, 3]), image).unwrap_err();
         assert!(short.0.contains("step"), "{short}");
+    }
+
+    #[test]
+    fn depth_reads_in_metres_from_millimetres_or_floats_with_gaps_as_nan() {
+        let depth = |enc: &str, be: bool, row: &[u8]| decode(Encoding::Cdr, &message(enc, be, row), depth_image);
+        let mm = depth("16UC1", false, &1500u16.to_le_bytes().into_iter().chain([0, 0]).collect::<Vec<_>>()).unwrap();
+        assert_eq!(mm.depth.metres[0], 1.5);
+        assert!(mm.depth.metres[1].is_nan(), "0 is no reading");
+        let be = depth("16UC1", true, &[0x05, 0xDC, 0x00, 0x01]).unwrap();
+        assert_eq!((be.depth.metres[0], be.depth.metres[1]), (1.5, 0.001));
+        let floats: Vec<u8> = [2.25f32, f32::NAN].iter().flat_map(|v| v.to_le_bytes()).collect();
+        let m = depth("32FC1", false, &floats).unwrap();
+        assert_eq!(m.depth.metres[0], 2.25);
+        assert!(m.depth.metres[1].is_nan());
+        let colour = depth("rgb8", false, &[1, 2, 3, 4, 5, 6]).unwrap_err();
+        assert!(colour.0.contains("depth encoding `rgb8`"), "{colour}");
     }
 }
