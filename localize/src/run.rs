@@ -263,8 +263,10 @@ pub struct TrajectoryMetrics {
 pub struct RunMetrics {
     pub fused: TrajectoryMetrics,
     /// The fused trajectory's errors after the rigid (SE3) alignment that
-    /// fits it best to the truth, as RGB-D and visual odometry papers report.
-    pub fused_se3_aligned: ErrorSummary,
+    /// fits it best to the truth, as RGB-D and visual odometry papers report
+    /// (`None` where no alignment is defined: fewer than three poses, or all
+    /// on a line).
+    pub fused_se3_aligned: Option<ErrorSummary>,
     pub odometry_imu: TrajectoryMetrics,
     pub frames: usize,
     /// Frames corrected with the camera's corners in the solve.
@@ -302,10 +304,10 @@ pub fn metrics_against(
     let (Some(fused), Some(odometry_imu)) = (measure(&result.trajectory), measure(&result.reference)) else {
         return Ok(None);
     };
-    let Ok(aligned) = compare(truth, &result.trajectory, Alignment::Se3, 0.01) else { return Ok(None) };
+    let aligned = compare(truth, &result.trajectory, Alignment::Se3, 0.01).ok().map(|c| c.summary);
     Ok(Some(RunMetrics {
         fused,
-        fused_se3_aligned: aligned.summary,
+        fused_se3_aligned: aligned,
         odometry_imu,
         frames: result.frames.len(),
         fused_frames: result.fused_frames(),

@@ -103,6 +103,9 @@ fn a_rendered_depth_sequence_is_localized_from_depth_alone_onto_its_poses() {
     assert_eq!(m.corrected_frames, 15, "every frame after the first is registered");
     // 0.5 m and 28 degrees of motion, carried by the registration alone.
     assert!(m.fused.overall.ate_rmse < 0.01, "ATE {} m", m.fused.overall.ate_rmse);
+    // The best rigid alignment can only lower the error (no alignment is one of them).
+    let aligned = m.fused_se3_aligned.expect("16 poses off a line align");
+    assert!(aligned.ate_rmse <= m.fused.overall.ate_rmse + 1e-12, "{aligned:?}");
     // Without registration the carried-on motion would stay where it started.
     assert!(m.odometry_imu.overall.ate_rmse > 0.1, "{}", m.odometry_imu.overall.ate_rmse);
 }

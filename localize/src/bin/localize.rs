@@ -607,11 +607,12 @@ fn run(args: &RunArgs) -> Result<()> {
                 );
             }
         }
-        let s = &m.fused_se3_aligned;
-        println!(
-            "{:<22} {:>8.4} {:>8.4} {:>8.4} {:>8.4}",
-            "fused, SE3-aligned", s.rmse_x, s.rmse_y, s.rmse_z, s.ate_rmse
-        );
+        if let Some(s) = &m.fused_se3_aligned {
+            println!(
+                "{:<22} {:>8.4} {:>8.4} {:>8.4} {:>8.4}",
+                "fused, SE3-aligned", s.rmse_x, s.rmse_y, s.rmse_z, s.ate_rmse
+            );
+        }
     }
     Ok(())
 }
