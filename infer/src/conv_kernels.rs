@@ -401,9 +401,20 @@ pub fn forward_im2col(x: &[f32], weight: &[f32], bias: Option<&[f32]>, geo: &Con
     out
 }
 
-/// The gradient with respect to the weight, [O, C/g, KH, KW]:
-/// `dW_g = sum over tiles of grad_g(tile) · im2col(tile)^T`.
+/// The gradient with respect to the weight, [O, C/g, KH, KW]: by the
+/// direct kernel where it applies (3x3 layers with up to 32 output
+/// channels), by im2col + GEMM elsewhere.
 pub fn weight_grad(x: &[f32], grad: &[f32], geo: &ConvGeometry) -> Vec<f32> {
+    check_lengths(geo, Some(x), None, Some(grad));
+    if direct_conv::applies(geo) {
+        return direct_conv::weight_grad(x, grad, geo);
+    }
+    weight_grad_im2col(x, grad, geo)
+}
+
+/// The weight gradient as `dW_g = sum over tiles of grad_g(tile) ·
+/// im2col(tile)^T`, for any geometry.
+pub fn weight_grad_im2col(x: &[f32], grad: &[f32], geo: &ConvGeometry) -> Vec<f32> {
     check_lengths(geo, Some(x), None, Some(grad));
     let (patch, l, og) = (geo.patch_len(), geo.out_len(), geo.group_out());
     let tiles = geo.tiles();

@@ -214,11 +214,139 @@ unsafe fn run_kernel(isa: Isa, vectors: usize, tail: usize, block: &Block) {
     }
 }
 
+/// One weight-gradient call's pointers and sizes.
+#[derive(Clone, Copy)]
+struct GradBlock {
+    /// The padded frame's row (tap row ky) of the band's first output row.
+    input: *const f32,
+    /// Elements between rows of the padded frame.
+    row: usize,
+    /// Each output channel's gradient at the band's first row; a channel
+    /// past the last points at the first (its sums are dropped).
+    grad: [*const f32; GRAD_BLOCK_MAX],
+    rows: usize,
+    width: usize,
+    /// Where the block's lane sums go: [channel of the block][kx][lanes].
+    sums: *mut f32,
+}
+
+/// Output channels per register block of the weight gradient: eight by
+/// three taps (24 accumulators of 16 lanes) with AVX-512, four with AVX2.
+const GRAD_BLOCK_MAX: usize = 8;
+
+/// The gradient with respect to the weight, [O, C, 3, 3]. Call only where
+/// `applies` holds: the kernel takes any number of outputs, but beyond
+/// `MAX_OUT_CHANNELS` im2col + GEMM is faster (`bench conv`: ahead on
+/// VGG16/4's 16- and 32-channel layers, behind on 64-channel ones).
+pub fn weight_grad(x: &[f32], grad: &[f32], geo: &ConvGeometry) -> Vec<f32> {
+    let isa = isa().filter(|_| applies(geo)).expect("direct_conv::weight_grad called where it does not apply");
+    weight_grad_with(isa, x, grad, geo)
+}
+
+/// `weight_grad` with the kernels of `isa`, which the CPU must have.
+///
+/// Why: im2col + GEMM copies every input value nine times and packs it
+/// again for a product only 16-64 rows tall. Here each task takes a band
+/// of rows of one image, and for every (block of output channels, input
+/// channel, tap row) multiplies the band's gradient rows by the three
+/// shifted input rows in registers, adding lane-wise sums into its own
+/// partial; the lanes and partials are summed at the end.
+fn weight_grad_with(isa: Isa, x: &[f32], grad: &[f32], geo: &ConvGeometry) -> Vec<f32> {
+    let [h, w] = geo.in_hw;
+    let (o_n, c_n) = (geo.out_channels, geo.in_channels);
+    assert_eq!(x.len(), geo.batch * c_n * h * w, "input length");
+    assert_eq!(grad.len(), geo.batch * o_n * h * w, "gradient length");
+    let frame = padded(x, geo);
+    let (plane, row) = ((h + 2) * (w + 2), w + 2);
+    let (lanes, block_o) = match isa {
+        Isa::Avx512 => (16, 8),
+        Isa::Avx2 => (8, 4),
+    };
+    let blocks = o_n.div_ceil(block_o);
+    // Lane sums: [block][C][ky][channel of the block][kx][lanes].
+    let per_tap_row = block_o * 3 * lanes;
+    let sums_len = blocks * c_n * 3 * per_tap_row;
+    // Bands of rows whose gradient for one block of channels stays in the
+    // L1 cache (about 24 KB) while every input channel and tap row reads it.
+    let band = (24 * 1024 / (block_o * w * 4)).clamp(1, h);
+    let bands = h.div_ceil(band);
+    let partials = (0..geo.batch * bands)
+        .into_par_iter()
+        .fold(
+            || vec![0.0f32; sums_len],
+            |mut sums, job| {
+                let (n, y0) = (job / bands, job % bands * band);
+                let rows = band.min(h - y0);
+                for b in 0..blocks {
+                    let first = b * block_o;
+                    let mut grad_rows = [grad.as_ptr(); GRAD_BLOCK_MAX];
+                    for (i, g) in grad_rows.iter_mut().enumerate().take(block_o) {
+                        let o = if first + i < o_n { first + i } else { first };
+                        *g = grad[((n * o_n + o) * h + y0) * w..].as_ptr();
+                    }
+                    for c in 0..c_n {
+                        for ky in 0..3 {
+                            let block = GradBlock {
+                                input: frame[(n * c_n + c) * plane + (y0 + ky) * row..].as_ptr(),
+                                row,
+                                grad: grad_rows,
+                                rows,
+                                width: w,
+                                sums: sums[((b * c_n + c) * 3 + ky) * per_tap_row..].as_mut_ptr(),
+                            };
+                            // SAFETY: the kernel reads `rows` rows of `w` + 2
+                            // values from the padded frame at `input` (rows
+                            // y0 + ky .. y0 + ky + rows <= h + 2), `rows` rows
+                            // of `w` from each gradient pointer (inside channel
+                            // o's plane), and adds into its `per_tap_row` sums;
+                            // the CPU has the kernel's features (`isa`).
+                            unsafe { run_grad_kernel(isa, &block) };
+                        }
+                    }
+                }
+                sums
+            },
+        )
+        .reduce_with(|mut a, b| {
+            a.iter_mut().zip(&b).for_each(|(a, b)| *a += b);
+            a
+        })
+        .unwrap_or_else(|| vec![0.0; sums_len]);
+    let mut out = vec![0.0f32; o_n * c_n * 9];
+    for o in 0..o_n {
+        let (b, i) = (o / block_o, o % block_o);
+        for c in 0..c_n {
+            for ky in 0..3 {
+                for kx in 0..3 {
+                    let at = ((b * c_n + c) * 3 + ky) * per_tap_row + (i * 3 + kx) * lanes;
+                    out[(o * c_n + c) * 9 + ky * 3 + kx] = partials[at..at + lanes].iter().sum();
+                }
+            }
+        }
+    }
+    out
+}
+
+unsafe fn run_grad_kernel(isa: Isa, block: &GradBlock) {
+    #[cfg(target_arch = "x86_64")]
+    unsafe {
+        match isa {
+            Isa::Avx512 => avx512::grad_kernel(block),
+            Isa::Avx2 => avx2::grad_kernel(block),
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        let _ = (isa, block);
+        unreachable!("`applies` is false off x86-64");
+    }
+}
+
 #[cfg(target_arch = "x86_64")]
 mod avx512 {
     use std::arch::x86_64::*;
 
-    use super::{BLOCK_O, Block};
+    use super::{BLOCK_O, Block, GradBlock};
 
     /// `NV` vectors of 16 columns by `BLOCK_O` output channels; the last
     /// vector holds `tail` columns (1-16).
@@ -268,13 +396,48 @@ mod avx512 {
             }
         }
     }
+    /// Eight output channels by the three taps of one tap row, over the
+    /// band's rows, 16 columns at a time (the last vector masked).
+    #[target_feature(enable = "avx512f")]
+    pub unsafe fn grad_kernel(b: &GradBlock) {
+        const BO: usize = 8;
+        let mut acc = [[_mm512_setzero_ps(); 3]; BO];
+        unsafe {
+            for y in 0..b.rows {
+                let input = b.input.add(y * b.row);
+                let mut x = 0;
+                while x < b.width {
+                    let left = b.width - x;
+                    let mask: __mmask16 = if left >= 16 { 0xffff } else { (1u16 << left) - 1 };
+                    let v = [
+                        _mm512_maskz_loadu_ps(mask, input.add(x)),
+                        _mm512_maskz_loadu_ps(mask, input.add(x + 1)),
+                        _mm512_maskz_loadu_ps(mask, input.add(x + 2)),
+                    ];
+                    for (i, acc) in acc.iter_mut().enumerate() {
+                        let g = _mm512_maskz_loadu_ps(mask, b.grad[i].add(y * b.width + x));
+                        for (a, v) in acc.iter_mut().zip(&v) {
+                            *a = _mm512_fmadd_ps(g, *v, *a);
+                        }
+                    }
+                    x += 16;
+                }
+            }
+            for (i, acc) in acc.iter().enumerate() {
+                for (kx, a) in acc.iter().enumerate() {
+                    let dst = b.sums.add((i * 3 + kx) * 16);
+                    _mm512_storeu_ps(dst, _mm512_add_ps(_mm512_loadu_ps(dst), *a));
+                }
+            }
+        }
+    }
 }
 
 #[cfg(target_arch = "x86_64")]
 mod avx2 {
     use std::arch::x86_64::*;
 
-    use super::{BLOCK_O, Block};
+    use super::{BLOCK_O, Block, GradBlock};
 
     /// `NV` vectors of 8 columns by `BLOCK_O` output channels; the last
     /// vector holds `tail` columns (1-8).
@@ -332,12 +495,49 @@ mod avx2 {
             }
         }
     }
+
+    /// Four output channels by the three taps of one tap row, over the
+    /// band's rows, 8 columns at a time (the last vector masked).
+    #[target_feature(enable = "avx2,fma")]
+    pub unsafe fn grad_kernel(b: &GradBlock) {
+        const BO: usize = 4;
+        let mut acc = [[_mm256_setzero_ps(); 3]; BO];
+        let lanes = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+        unsafe {
+            for y in 0..b.rows {
+                let input = b.input.add(y * b.row);
+                let mut x = 0;
+                while x < b.width {
+                    let left = (b.width - x).min(8) as i32;
+                    let mask = _mm256_cmpgt_epi32(_mm256_set1_epi32(left), lanes);
+                    let v = [
+                        _mm256_maskload_ps(input.add(x), mask),
+                        _mm256_maskload_ps(input.add(x + 1), mask),
+                        _mm256_maskload_ps(input.add(x + 2), mask),
+                    ];
+                    for (i, acc) in acc.iter_mut().enumerate() {
+                        let g = _mm256_maskload_ps(b.grad[i].add(y * b.width + x), mask);
+                        for (a, v) in acc.iter_mut().zip(&v) {
+                            *a = _mm256_fmadd_ps(g, *v, *a);
+                        }
+                    }
+                    x += 8;
+                }
+            }
+            for (i, acc) in acc.iter().enumerate() {
+                for (kx, a) in acc.iter().enumerate() {
+                    let dst = b.sums.add((i * 3 + kx) * 8);
+                    _mm256_storeu_ps(dst, _mm256_add_ps(_mm256_loadu_ps(dst), *a));
+                }
+            }
+        }
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::conv_kernels::forward_im2col;
+    use crate::conv_kernels::{forward_im2col, weight_grad_im2col};
 
     fn values(len: usize, seed: u64) -> Vec<f32> {
         use rand::{RngExt, SeedableRng};
@@ -381,6 +581,26 @@ mod tests {
                         assert!(same, "{isa:?} shape {s} relu {relu} element {i}: {a} vs {b}");
                         assert!(!relu || a.is_nan() || a.is_sign_positive(), "{isa:?}: ReLU gave {a}");
                     }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn every_weight_gradient_kernel_matches_im2col() {
+        // Widths with and without a vector tail, bands that do not divide
+        // the height, output channels not a multiple of either block.
+        let shapes = [[2, 3, 5, 1, 5], [1, 16, 4, 7, 18], [2, 2, 3, 16, 4], [1, 5, 40, 33, 9], [3, 4, 7, 100, 64]];
+        for (s, &[n, c, h, w, o]) in shapes.iter().enumerate() {
+            let geo = ConvGeometry::new([n, c, h, w], [o, c, 3, 3], [1, 1], [(1, 1), (1, 1)], [1, 1], 1).unwrap();
+            let seed = 10 * s as u64 + 5;
+            let (x, grad) = (values(n * c * h * w, seed), values(n * o * h * w, seed + 1));
+            let reference = weight_grad_im2col(&x, &grad, &geo);
+            for isa in isas() {
+                let ours = weight_grad_with(isa, &x, &grad, &geo);
+                assert_eq!(ours.len(), reference.len());
+                for (i, (a, b)) in ours.iter().zip(&reference).enumerate() {
+                    assert!((a - b).abs() <= 1e-4 * (1.0 + b.abs()), "{isa:?} shape {s} element {i}: {a} vs {b}");
                 }
             }
         }
