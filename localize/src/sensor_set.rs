@@ -43,11 +43,6 @@ impl SensorSet {
         }
     }
 
-    /// The paper's rig: the defaults apply unchanged.
-    pub fn is_full(&self) -> bool {
-        *self == Self { range: RangeSensor::Lidar, imu: true, wheels: true, camera: true }
-    }
-
     /// The default settings for these sensors, before a `--config` file.
     pub fn default_config(&self) -> LocalizeConfig {
         let mut config = LocalizeConfig::default();
@@ -117,7 +112,6 @@ mod tests {
     #[test]
     fn the_papers_rig_keeps_every_default_and_the_others_say_what_changes() {
         let full = SensorSet { range: RangeSensor::Lidar, imu: true, wheels: true, camera: true };
-        assert!(full.is_full());
         assert_eq!(full.default_config(), LocalizeConfig::default());
         assert_eq!(full.to_string(), "3D LIDAR + IMU + wheel odometry + camera");
         let with_imu = SensorSet { wheels: false, ..full };

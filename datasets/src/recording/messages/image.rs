@@ -32,26 +32,63 @@ fn layout(encoding: &str) -> Option<(usize, &'static str)> {
 /// than anything localization needs; a larger header is corrupt).
 const MAX_SIDE: u32 = 16384;
 
+/// The fields of a `sensor_msgs/Image` with its size, step and data length
+/// checked against its encoding's bytes per pixel.
+struct RawImage<'a> {
+    header: Header,
+    width: u32,
+    height: u32,
+    big_endian: bool,
+    step: usize,
+    bytes_per_pixel: usize,
+    data: &'a [u8],
+}
+
+impl<'a> RawImage<'a> {
+    /// Reads the message; `bytes_per_pixel` says what an encoding takes, or
+    /// why it is not taken.
+    fn read(r: &mut dyn WireReader<'a>, bytes_per_pixel: impl FnOnce(&str) -> WireResult<usize>) -> WireResult<Self> {
+        let header = r.header()?;
+        let height = r.u32()?;
+        let width = r.u32()?;
+        let encoding = r.string()?;
+        let big_endian = r.u8()? != 0;
+        let step = r.u32()? as usize;
+        let data = r.byte_sequence()?;
+        let bpp = bytes_per_pixel(&encoding)?;
+        ensure(width > 0 && height > 0 && width <= MAX_SIDE && height <= MAX_SIDE, || {
+            format!("image size {width}x{height} is empty or larger than {MAX_SIDE} on a side")
+        })?;
+        let (w, h) = (width as usize, height as usize);
+        ensure(step >= w * bpp, || format!("step {step} is less than width {width} x {bpp} bytes"))?;
+        ensure(data.len() >= step * (h - 1) + w * bpp, || {
+            format!(
+                "{width}x{height} {encoding} with step {step} needs {} bytes, the message has {}",
+                step * h,
+                data.len()
+            )
+        })?;
+        Ok(Self { header, width, height, big_endian, step, bytes_per_pixel: bpp, data })
+    }
+
+    /// Row `y`'s pixels, without the step's padding.
+    fn row(&self, y: usize) -> &'a [u8] {
+        let start = y * self.step;
+        &self.data[start..start + self.width as usize * self.bytes_per_pixel]
+    }
+}
+
 pub fn image(r: &mut dyn WireReader<'_>) -> WireResult<ImageMessage> {
-    let header = r.header()?;
-    let height = r.u32()?;
-    let width = r.u32()?;
-    let encoding = r.string()?;
-    let big_endian = r.u8()? != 0;
-    let step = r.u32()? as usize;
-    let data = r.byte_sequence()?;
-    let (bpp, kind) = layout(&encoding).ok_or_else(|| {
-        wire_error(format!("image encoding `{encoding}` is not supported (supported: {})", ENCODINGS.join(", ")))
+    let mut kind = "";
+    let raw = RawImage::read(r, |encoding| {
+        let (bpp, k) = layout(encoding).ok_or_else(|| {
+            wire_error(format!("image encoding `{encoding}` is not supported (supported: {})", ENCODINGS.join(", ")))
+        })?;
+        kind = k;
+        Ok(bpp)
     })?;
-    ensure(width > 0 && height > 0 && width <= MAX_SIDE && height <= MAX_SIDE, || {
-        format!("image size {width}x{height} is empty or larger than {MAX_SIDE} on a side")
-    })?;
-    let (w, h) = (width as usize, height as usize);
-    ensure(step >= w * bpp, || format!("step {step} is less than width {width} x {bpp} bytes"))?;
-    ensure(data.len() >= step * (h - 1) + w * bpp, || {
-        format!("{width}x{height} {encoding} with step {step} needs {} bytes, the message has {}", step * h, data.len())
-    })?;
-    let row = |y: usize| &data[y * step..y * step + w * bpp];
+    let (width, height, big_endian) = (raw.width, raw.height, raw.big_endian);
+    let row = |y: usize| raw.row(y);
     let image = match kind {
         "mono8" => {
             DynamicImage::ImageLuma8(ImageBuffer::from_fn(width, height, |x, y| Luma([row(y as usize)[x as usize]])))
@@ -75,7 +112,7 @@ pub fn image(r: &mut dyn WireReader<'_>) -> WireResult<ImageMessage> {
             }))
         }
     };
-    Ok(ImageMessage { header, image })
+    Ok(ImageMessage { header: raw.header, image })
 }
 
 /// A depth image message (`16UC1` in millimetres, `32FC1` in metres).
@@ -88,32 +125,16 @@ pub struct DepthMessage {
 /// `sensor_msgs/Image` holding depth, as RGB-D drivers publish it: `16UC1`
 /// (or `mono16`) in millimetres, `32FC1` in metres; 0 or NaN = no reading.
 pub fn depth_image(r: &mut dyn WireReader<'_>) -> WireResult<DepthMessage> {
-    let header = r.header()?;
-    let height = r.u32()?;
-    let width = r.u32()?;
-    let encoding = r.string()?;
-    let big_endian = r.u8()? != 0;
-    let step = r.u32()? as usize;
-    let data = r.byte_sequence()?;
-    let bpp = match encoding.as_str() {
-        "16UC1" | "mono16" => 2,
-        "32FC1" => 4,
-        other => {
-            return Err(wire_error(format!("depth encoding `{other}` is not supported (16UC1 in mm, 32FC1 in m)")));
-        }
-    };
-    ensure(width > 0 && height > 0 && width <= MAX_SIDE && height <= MAX_SIDE, || {
-        format!("image size {width}x{height} is empty or larger than {MAX_SIDE} on a side")
+    let raw = RawImage::read(r, |encoding| match encoding {
+        "16UC1" | "mono16" => Ok(2),
+        "32FC1" => Ok(4),
+        other => Err(wire_error(format!("depth encoding `{other}` is not supported (16UC1 in mm, 32FC1 in m)"))),
     })?;
-    let (w, h) = (width as usize, height as usize);
-    ensure(step >= w * bpp, || format!("step {step} is less than width {width} x {bpp} bytes"))?;
-    ensure(data.len() >= step * (h - 1) + w * bpp, || {
-        format!("{width}x{height} {encoding} with step {step} needs {} bytes, the message has {}", step * h, data.len())
-    })?;
-    let mut metres = Vec::with_capacity(w * h);
-    for y in 0..h {
-        for b in data[y * step..y * step + w * bpp].chunks_exact(bpp) {
-            let value = if bpp == 2 {
+    let (width, height, big_endian) = (raw.width, raw.height, raw.big_endian);
+    let mut metres = Vec::with_capacity(width as usize * height as usize);
+    for y in 0..height as usize {
+        for b in raw.row(y).chunks_exact(raw.bytes_per_pixel) {
+            let value = if raw.bytes_per_pixel == 2 {
                 let mm = if big_endian { u16::from_be_bytes([b[0], b[1]]) } else { u16::from_le_bytes([b[0], b[1]]) };
                 f32::from(mm) / 1000.0
             } else {
@@ -123,7 +144,7 @@ pub fn depth_image(r: &mut dyn WireReader<'_>) -> WireResult<DepthMessage> {
             metres.push(if value > 0.0 && value.is_finite() { value } else { f32::NAN });
         }
     }
-    Ok(DepthMessage { header, depth: DepthImage { width, height, metres } })
+    Ok(DepthMessage { header: raw.header, depth: DepthImage { width, height, metres } })
 }
 
 pub fn compressed_image(r: &mut dyn WireReader<'_>) -> WireResult<ImageMessage> {
