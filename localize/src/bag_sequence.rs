@@ -620,7 +620,7 @@ impl SensorSequence for BagSequence {
                     }
                 };
                 let (_, cloud) = pending.pop_front().expect("front exists");
-                visit(FrameInput { stamp: self.scans[k].stamp, cloud, image })?;
+                visit(FrameInput { stamp: self.scans[k].stamp, cloud, image, edges: Vec::new() })?;
             }
             Ok(())
         };

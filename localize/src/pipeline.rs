@@ -8,8 +8,10 @@ use std::time::Instant;
 
 use datasets::formats::{Calibration, PointCloud};
 use datasets::math::{Pose3, Vec3};
+use nalgebra::Point3;
 
 use crate::config::LocalizeConfig;
+use crate::edge_map::EdgeMap;
 use crate::ekf::Ekf;
 use crate::error::Result;
 use crate::fusion::CornerFusion;
@@ -159,6 +161,9 @@ pub struct CameraCorners {
     pub lidar_from_camera: Pose3,
     /// The detector's own time.
     pub detect_ms: f64,
+    /// The image's edges lifted through a registered depth image, in the
+    /// LIDAR's (the depth camera's) frame; empty without.
+    pub edges: Vec<Point3<f32>>,
 }
 
 pub struct Localizer {
@@ -169,9 +174,12 @@ pub struct Localizer {
     pub plane_map: PlaneMap,
     scan_matcher: ScanMatcher,
     pub point_map: PointMap,
+    pub edge_map: EdgeMap,
     calibration: Calibration,
     frames_seen: usize,
     last_stamp: Option<f64>,
+    /// The last frame's corrected pose: a registration start.
+    previous_pose: Option<Pose3>,
     /// The maps came from an earlier run: the first frame is corrected
     /// against them rather than starting them.
     given_map: bool,
@@ -196,10 +204,12 @@ impl Localizer {
             map: LandmarkMap::new(config.landmarks.clone()),
             plane_map: PlaneMap::new(config.plane_landmarks.clone()),
             point_map: scan_matcher.new_map(),
+            edge_map: scan_matcher.new_edge_map(),
             scan_matcher,
             calibration,
             frames_seen: 0,
             last_stamp: None,
+            previous_pose: None,
             given_map: false,
             keyframes: Vec::new(),
             relocalize: config.relocalize.clone(),
@@ -238,7 +248,7 @@ impl Localizer {
         if !self.scan_matcher.config().enabled {
             return Err("placing a scan in the map needs scan matching (`scan_match.enabled`)".into());
         }
-        let scan = self.scan_points(geometry);
+        let scan = self.scan_points(geometry, &[]);
         let (seeds, window_deg) = match start {
             Some(pose) => (std::slice::from_ref(pose), START_WINDOW_DEG),
             None => (self.keyframes.as_slice(), 180.0),
@@ -274,7 +284,7 @@ impl Localizer {
         camera: CameraCorners,
         started: Instant,
     ) -> FrameReport {
-        let CameraCorners { pixels, lidar_from_camera, detect_ms } = camera;
+        let CameraCorners { pixels, lidar_from_camera, detect_ms, edges } = camera;
         // The first frame anchors the maps at the reference pose.
         let first = self.frames_seen == 0 && !self.given_map;
         self.frames_seen += 1;
@@ -300,7 +310,7 @@ impl Localizer {
         report.plane_correspondences = walls.len();
         // The scan against the point map, from the predicted pose.
         let scan_start = Instant::now();
-        let scan_points = self.scan_points(&geometry);
+        let scan_points = self.scan_points(&geometry, &edges);
         let scan = self.register(&scan_points, ekf);
         report.scan_correspondences = scan.map_or(0, |s| s.correspondences);
         report.scan_ms = elapsed_ms(scan_start);
@@ -353,25 +363,35 @@ impl Localizer {
         FrameStatus::NoImage { why, walls, scan }
     }
 
-    /// The frame's planar points for scan matching (none when it is off).
-    fn scan_points(&self, geometry: &Geometry) -> ScanPoints {
+    /// The frame's planar points and `edges` (LIDAR frame) for scan
+    /// matching (none when it is off).
+    fn scan_points(&self, geometry: &Geometry, edges: &[Point3<f32>]) -> ScanPoints {
         if !self.scan_matcher.config().enabled {
-            return ScanPoints { points: Vec::new(), normals: Vec::new() };
+            return ScanPoints::default();
         }
         let robot_from_lidar = &self.calibration.robot_from_lidar;
-        ScanPoints::select(self.scan_matcher.config(), &geometry.points, &geometry.normals, robot_from_lidar)
+        let mut scan =
+            ScanPoints::select(self.scan_matcher.config(), &geometry.points, &geometry.normals, robot_from_lidar);
+        scan.edges = edges.iter().map(|p| robot_from_lidar.transform_point(&p.cast::<f64>()).coords).collect();
+        scan
     }
 
-    /// The scan registered against the point map from the filter's pose.
+    /// The scan registered against the point map from the filter's pose
+    /// (and from the last frame's across a wide baseline).
     fn register(&self, scan: &ScanPoints, ekf: &Ekf) -> Option<ScanFix> {
         if scan.points.is_empty() {
             return None;
         }
-        self.scan_matcher.register(&self.point_map, scan, &crate::ekf::pose_vector(&ekf.x))
+        let previous = self.previous_pose.as_ref();
+        let predicted = crate::ekf::pose_vector(&ekf.x);
+        self.scan_matcher.register_after(&self.point_map, Some(&self.edge_map), scan, &predicted, previous)
     }
 
+    /// The frame's points join the maps at its corrected pose.
     fn insert_scan(&mut self, scan: &ScanPoints, pose: &Pose3) {
         self.point_map.insert(&scan.points, &scan.normals, pose);
+        self.edge_map.insert(&scan.edges, pose);
+        self.previous_pose = Some(*pose);
     }
 
     /// The 2D corners matched to the cloud's 3D corners (in the robot frame)

@@ -163,7 +163,7 @@ pub fn relocalize(
         .par_iter()
         .map(|s| {
             let (x, information) =
-                refiner.register(map, scan, s).map_or((*s, Matrix6::zeros()), |f| (f.pose, f.information));
+                refiner.register(map, None, scan, s).map_or((*s, Matrix6::zeros()), |f| (f.pose, f.information));
             (agreement(map, &walls, &x, matching, config.agree_m), x, information)
         })
         .collect();
@@ -238,7 +238,7 @@ fn candidates(seeds: &[Pose3], yaw_window_deg: f64, config: &RelocalizeConfig) -
 fn upright(scan: &ScanPoints) -> ScanPoints {
     let (points, normals) =
         scan.points.iter().zip(&scan.normals).filter(|(_, n)| n.z.abs() < std::f64::consts::FRAC_1_SQRT_2).unzip();
-    ScanPoints { points, normals }
+    ScanPoints { points, normals, edges: Vec::new() }
 }
 
 /// Every k-th point of the scan, about `count` of them.
@@ -247,6 +247,7 @@ fn even_sample(scan: &ScanPoints, count: usize) -> ScanPoints {
     ScanPoints {
         points: scan.points.iter().step_by(stride).copied().collect(),
         normals: scan.normals.iter().step_by(stride).copied().collect(),
+        edges: Vec::new(),
     }
 }
 
@@ -325,7 +326,7 @@ mod tests {
         // within 6 m, in its own frame, with 1 cm of noise.
         let truth = Pose3::from_parts(Vec3::new(1.7, 4.6, 0.0).into(), rotation(0.0, 0.0, 130f64.to_radians()));
         let inverse = truth.inverse();
-        let mut scan = ScanPoints { points: Vec::new(), normals: Vec::new() };
+        let mut scan = ScanPoints::default();
         for (p, n) in points.iter().zip(&normals).step_by(3) {
             if (p - truth.translation.vector).norm() < 6.0 {
                 let noise = Vec3::new(rng.random_range(-0.01..0.01), rng.random_range(-0.01..0.01), 0.0);
@@ -369,6 +370,7 @@ mod tests {
         let scan = ScanPoints {
             points: points.iter().filter(|p| (p.x - 20.0).abs() < 5.0).map(|p| p - Vec3::new(20.0, 0.0, 0.0)).collect(),
             normals: points.iter().zip(&normals).filter(|(p, _)| (p.x - 20.0).abs() < 5.0).map(|(_, n)| *n).collect(),
+            edges: Vec::new(),
         };
         let keyframes: Vec<Pose3> =
             (0..40).map(|k| Pose3::from_parts(Vec3::new(k as f64, 0.0, 0.0).into(), rotation(0.0, 0.0, 0.0))).collect();

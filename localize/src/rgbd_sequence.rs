@@ -28,6 +28,7 @@ use nalgebra::{Matrix3, Point3};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{LocalizeError, Result};
+use crate::image_edges::{EdgeOptions, edge_points};
 use crate::sensor_set::RangeSensor;
 use crate::sequence::{FrameImage, FrameInput, SensorSequence, nearest_within};
 
@@ -41,11 +42,14 @@ pub struct DepthOptions {
     /// Kinect's depth error grows with the square of the range.
     pub near_m: f32,
     pub far_m: f32,
+    /// The colour image's edges lifted through the depth, where the two are
+    /// registered (TUM's layout).
+    pub edges: EdgeOptions,
 }
 
 impl Default for DepthOptions {
     fn default() -> Self {
-        Self { stride: 4, near_m: 0.2, far_m: 4.0 }
+        Self { stride: 4, near_m: 0.2, far_m: 4.0, edges: EdgeOptions::default() }
     }
 }
 
@@ -58,6 +62,7 @@ impl DepthOptions {
                 self.near_m, self.far_m
             )));
         }
+        self.edges.validate().map_err(|e| e.within("edges"))?;
         Ok(())
     }
 }
@@ -222,8 +227,8 @@ impl RgbdSequence {
         })
     }
 
-    /// The scan of one depth image, in the body frame.
-    fn cloud(&self, path: &Path) -> std::result::Result<PointCloud, String> {
+    /// The depth image at `path`, of the depth camera's size.
+    fn depth(&self, path: &Path) -> std::result::Result<DepthImage, String> {
         let depth = read_depth_png(path, self.units_per_metre).map_err(|e| e.to_string())?;
         let camera = &self.depth_camera;
         if (depth.width, depth.height) != (camera.width, camera.height) {
@@ -236,7 +241,22 @@ impl RgbdSequence {
                 camera.height
             ));
         }
-        Ok(depth_scan(&depth, camera, &self.options))
+        Ok(depth)
+    }
+
+    /// The edge points of a frame whose colour image is registered to its
+    /// depth (TUM's layout), in the body frame; none otherwise.
+    fn edges(&self, depth: &DepthImage, image: &FrameImage) -> Vec<Point3<f32>> {
+        let options = &self.options;
+        let (RgbdLayout::Tum, true, Ok(colour)) = (self.layout, options.edges.enabled, &image.image) else {
+            return Vec::new();
+        };
+        let body_from_optical = optical_from_body().inverse();
+        edge_points(&colour.to_luma8(), depth, &self.depth_camera, &options.edges, options.near_m, options.far_m)
+            .unwrap_or_default()
+            .into_iter()
+            .map(|p| (body_from_optical * p.cast::<f64>()).cast::<f32>())
+            .collect()
     }
 }
 
@@ -414,7 +434,13 @@ impl SensorSequence for RgbdSequence {
                     self.image_tolerance_s, frame.stamp
                 )),
             };
-            visit(FrameInput { stamp: frame.stamp, cloud: self.cloud(&frame.depth), image })?;
+            let depth = self.depth(&frame.depth);
+            let edges = match (&depth, &image) {
+                (Ok(depth), Ok(image)) => self.edges(depth, image),
+                _ => Vec::new(),
+            };
+            let cloud = depth.map(|d| depth_scan(&d, &self.depth_camera, &self.options));
+            visit(FrameInput { stamp: frame.stamp, cloud, image, edges })?;
         }
         Ok(())
     }

@@ -117,7 +117,7 @@ pub fn run_sequence_in_map(
     let robot_from_camera = calibration.robot_from_camera();
     let lidar_from_robot = calibration.robot_from_lidar.inverse();
     sequence.for_each_frame(&mut |frame: FrameInput| {
-        let FrameInput { stamp, mut cloud, image } = frame;
+        let FrameInput { stamp, mut cloud, image, edges } = frame;
         if let Err(why) = &cloud {
             unreadable.push(why.clone());
         }
@@ -166,7 +166,9 @@ pub fn run_sequence_in_map(
             dead_reckoning.place(&placement.pose, &placement.covariance);
             result.placement = Some(placement);
         }
-        let camera = CameraCorners { pixels, lidar_from_camera, detect_ms };
+        // The image's edges are the camera's too: left out with it.
+        let edges = if camera_off { Vec::new() } else { edges };
+        let camera = CameraCorners { pixels, lidar_from_camera, detect_ms, edges };
         let report = localizer.process(stamp, &mut fused, geometry, camera, started);
         // What the recording does not measure carries on from this motion.
         if let (Some(&from_stamp), Some(from)) = (result.trajectory.stamps.last(), result.trajectory.poses.last()) {

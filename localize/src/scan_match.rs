@@ -11,6 +11,8 @@ use nalgebra::{Matrix3, Matrix6, Point3, SMatrix, Vector6};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::edge_map::EdgeMap;
+use crate::ekf::{pose_entries, pose_from_entries};
 use crate::euler::{rotation, wrap};
 use crate::normals::PointNormal;
 use crate::point_map::PointMap;
@@ -33,6 +35,15 @@ pub struct ScanMatchConfig {
     pub max_curvature: f64,
     /// Farthest a scan point may be from its map point.
     pub max_distance_m: f64,
+    /// Where given, a wide baseline (the predicted motion moves the scan's
+    /// points farther than `max_distance_m`: keyframes, a quick hand)
+    /// registers with this gate at the first iteration, narrowed to
+    /// `max_distance_m` over the first half of the iterations, from the
+    /// prediction and from the last frame's pose, keeping the result with
+    /// more inliers. A start farther off than the final gate still finds its
+    /// correspondences; where nothing measures the motion, a wrong
+    /// registration's jump carried on would send the next start farther off.
+    pub wide_baseline_distance_m: Option<f64>,
     /// Largest angle between a scan point's normal and its map point's.
     pub max_normal_angle_deg: f64,
     pub iterations: usize,
@@ -52,6 +63,11 @@ pub struct ScanMatchConfig {
     pub horizontal_only: bool,
     /// Fewer correspondences than this: no measurement.
     pub min_correspondences: usize,
+    /// The edge map (`image_edges`: RGB-D frames whose colour is registered
+    /// to their depth): its most points per voxel, and the least spacing
+    /// between them.
+    pub edges_per_voxel: usize,
+    pub edge_spacing_m: f64,
 }
 
 impl Default for ScanMatchConfig {
@@ -64,6 +80,7 @@ impl Default for ScanMatchConfig {
             source_voxel_m: 0.2,
             max_curvature: 0.05,
             max_distance_m: 0.3,
+            wide_baseline_distance_m: None,
             max_normal_angle_deg: 30.0,
             iterations: 10,
             point_sigma_m: 0.05,
@@ -72,6 +89,8 @@ impl Default for ScanMatchConfig {
             floor_rad: 0.002,
             horizontal_only: true,
             min_correspondences: 50,
+            edges_per_voxel: 40,
+            edge_spacing_m: 0.01,
         }
     }
 }
@@ -100,17 +119,38 @@ impl ScanMatchConfig {
                 format!("{} outside (0, map_voxel_m = {}]", self.max_distance_m, self.map_voxel_m),
             ));
         }
+        if let Some(start) = self.wide_baseline_distance_m
+            && !(start >= self.max_distance_m && start <= self.map_voxel_m)
+        {
+            return Err(InvalidSetting::field(
+                "wide_baseline_distance_m",
+                format!(
+                    "{start} outside [max_distance_m = {}, map_voxel_m = {}]",
+                    self.max_distance_m, self.map_voxel_m
+                ),
+            ));
+        }
         let count = InvalidSetting::count;
         count("points_per_voxel", self.points_per_voxel, 1, 10_000)?;
         count("iterations", self.iterations, 1, 1000)?;
+        count("edges_per_voxel", self.edges_per_voxel, 1, 10_000)?;
+        if !(self.edge_spacing_m.is_finite() && (0.0..=self.map_voxel_m).contains(&self.edge_spacing_m)) {
+            return Err(InvalidSetting::field(
+                "edge_spacing_m",
+                format!("{} outside [0, map_voxel_m]", self.edge_spacing_m),
+            ));
+        }
         count("min_correspondences", self.min_correspondences, 6, 10_000_000)
     }
 }
 
-/// A frame's surface points in the robot frame, thinned, with their normals.
+/// A frame's surface points in the robot frame, thinned, with their
+/// normals, and its edge points (none but from a registered RGB-D frame).
+#[derive(Default)]
 pub struct ScanPoints {
     pub points: Vec<Vec3>,
     pub normals: Vec<Vec3>,
+    pub edges: Vec<Vec3>,
 }
 
 impl ScanPoints {
@@ -158,7 +198,7 @@ impl ScanPoints {
             out_points.push((robot_from_lidar * points[k].cast::<f64>()).coords);
             out_normals.push(robot_from_lidar.rotation * normals[k].normal);
         }
-        Self { points: out_points, normals: out_normals }
+        Self { points: out_points, normals: out_normals, edges: Vec::new() }
     }
 }
 
@@ -171,6 +211,8 @@ pub struct ScanFix {
     pub correspondences: usize,
     /// Root mean square of the inliers' point-to-plane distances.
     pub rms_m: f64,
+    /// Residuals within the Huber threshold: what tells two starts' results apart.
+    pub inliers: usize,
 }
 
 impl ScanFix {
@@ -214,17 +256,44 @@ impl ScanMatcher {
         PointMap::new(c.map_voxel_m, c.points_per_voxel, c.map_spacing_m)
     }
 
-    /// Registers `scan` against `map` from `initial` (x, y, z, roll, pitch,
-    /// yaw); `None` with too few correspondences or a singular system.
-    pub fn register(&self, map: &PointMap, scan: &ScanPoints, initial: &Vector6<f64>) -> Option<ScanFix> {
+    pub fn new_edge_map(&self) -> EdgeMap {
+        let c = &self.config;
+        EdgeMap::new(c.map_voxel_m, c.edges_per_voxel, c.edge_spacing_m)
+    }
+
+    /// Registers `scan` against `map` (and its edge points against `edges`,
+    /// where given) from `initial` (x, y, z, roll, pitch, yaw); `None` with
+    /// too few correspondences or a singular system.
+    pub fn register(
+        &self,
+        map: &PointMap,
+        edges: Option<&EdgeMap>,
+        scan: &ScanPoints,
+        initial: &Vector6<f64>,
+    ) -> Option<ScanFix> {
+        self.register_within(map, edges, scan, initial, self.config.max_distance_m)
+    }
+
+    /// `register` with the correspondence gate narrowed from `start_gate_m`.
+    fn register_within(
+        &self,
+        map: &PointMap,
+        edges: Option<&EdgeMap>,
+        scan: &ScanPoints,
+        initial: &Vector6<f64>,
+        start_gate_m: f64,
+    ) -> Option<ScanFix> {
         let c = &self.config;
         if map.is_empty() {
             return None;
         }
         let cos_gate = c.max_normal_angle_deg.to_radians().cos();
         let mut x = *initial;
-        for _ in 0..c.iterations {
-            let terms = self.terms(map, scan, &x, cos_gate);
+        let narrowing = (c.iterations / 2).max(1) as f64;
+        let widening = (start_gate_m - c.max_distance_m).max(0.0);
+        for k in 0..c.iterations {
+            let gate = c.max_distance_m + widening * (1.0 - k as f64 / narrowing).max(0.0);
+            let terms = self.terms(map, edges, scan, &x, cos_gate, gate);
             if terms.len() < c.min_correspondences {
                 return None;
             }
@@ -234,11 +303,12 @@ impl ScanMatcher {
             for k in 3..6 {
                 x[k] = wrap(x[k]);
             }
-            if step.fixed_rows::<3>(0).norm() < 1e-4 && step.fixed_rows::<3>(3).norm() < 1e-5 {
+            let small = step.fixed_rows::<3>(0).norm() < 1e-4 && step.fixed_rows::<3>(3).norm() < 1e-5;
+            if small && gate == c.max_distance_m {
                 break;
             }
         }
-        let terms = self.terms(map, scan, &x, cos_gate);
+        let terms = self.terms(map, edges, scan, &x, cos_gate, c.max_distance_m);
         if terms.len() < c.min_correspondences {
             return None;
         }
@@ -251,14 +321,57 @@ impl ScanMatcher {
         let inlier_gate = c.huber * c.point_sigma_m;
         let inliers: Vec<f64> = terms.iter().map(|t| t.0).filter(|r| r.abs() <= inlier_gate).collect();
         let rms_m = (inliers.iter().map(|r| r * r).sum::<f64>() / inliers.len().max(1) as f64).sqrt();
-        Some(ScanFix { pose: x, information, correspondences: terms.len(), rms_m })
+        Some(ScanFix { pose: x, information, correspondences: terms.len(), rms_m, inliers: inliers.len() })
+    }
+
+    /// `register` from the `predicted` pose (x, y, z, roll, pitch, yaw),
+    /// after a frame at `previous`:
+    /// across a wide baseline (`wide_baseline_distance_m`) from both, with
+    /// the wide gate, keeping the result with the most inliers (the
+    /// prediction's of equals).
+    pub fn register_after(
+        &self,
+        map: &PointMap,
+        edges: Option<&EdgeMap>,
+        scan: &ScanPoints,
+        predicted: &Vector6<f64>,
+        previous: Option<&Pose3>,
+    ) -> Option<ScanFix> {
+        let c = &self.config;
+        let start = *predicted;
+        let shift = |previous: &Pose3| largest_shift(&scan.points, &pose_from_entries(predicted), previous);
+        let wide = match (c.wide_baseline_distance_m, previous) {
+            (Some(gate), Some(previous)) if shift(previous) > c.max_distance_m => Some((gate, pose_entries(previous))),
+            _ => None,
+        };
+        let Some((gate, still)) = wide else {
+            return self.register(map, edges, scan, &start);
+        };
+        let mut best: Option<ScanFix> = None;
+        for start in [start, still] {
+            if let Some(fix) = self.register_within(map, edges, scan, &start, gate)
+                && best.as_ref().is_none_or(|b| fix.inliers > b.inliers)
+            {
+                best = Some(fix);
+            }
+        }
+        best
     }
 
     /// Each scan point's residual and Jacobian at `x` against the plane of
     /// its nearest map point, when one is close enough and the plane faces
     /// the way the point's own surface does (within the angle gate; the two
-    /// sides of a thin wall face apart).
-    fn terms(&self, map: &PointMap, scan: &ScanPoints, x: &Vector6<f64>, cos_gate: f64) -> Vec<Term> {
+    /// sides of a thin wall face apart); each edge point's two residuals
+    /// across the line of its nearest map edge points.
+    fn terms(
+        &self,
+        map: &PointMap,
+        edges: Option<&EdgeMap>,
+        scan: &ScanPoints,
+        x: &Vector6<f64>,
+        cos_gate: f64,
+        gate: f64,
+    ) -> Vec<Term> {
         let t = Vec3::new(x[0], x[1], x[2]);
         let r = rotation(x[3], x[4], x[5]).to_rotation_matrix().into_inner();
         // d R / d angle, by central differences (the angles are Euler ZYX).
@@ -271,24 +384,44 @@ impl ScanMatcher {
             (at(&plus) - at(&minus)) / (2.0 * e)
         };
         let dr = [derivative(0), derivative(1), derivative(2)];
-        scan.points
+        // The residual along unit `direction` of `q = t + r p` from `anchor`.
+        let term = |p: &Vec3, q: &Vec3, direction: &Vec3, anchor: &Vec3| {
+            let mut jacobian = SMatrix::<f64, 1, 6>::zeros();
+            for k in 0..3 {
+                jacobian[k] = direction[k];
+                jacobian[3 + k] = direction.dot(&(dr[k] * p));
+            }
+            (direction.dot(&(q - anchor)), jacobian)
+        };
+        let mut terms: Vec<Term> = scan
+            .points
             .par_iter()
             .zip(&scan.normals)
             .filter_map(|(p, n)| {
                 let q = t + r * p;
-                let m = map.nearest_plane(&q, self.config.max_distance_m)?;
+                let m = map.nearest_plane(&q, gate)?;
                 if m.normal.dot(&(r * n)) < cos_gate {
                     return None;
                 }
-                let residual = m.normal.dot(&(q - m.centroid));
-                let mut jacobian = SMatrix::<f64, 1, 6>::zeros();
-                for k in 0..3 {
-                    jacobian[k] = m.normal[k];
-                    jacobian[3 + k] = m.normal.dot(&(dr[k] * p));
-                }
-                Some((residual, jacobian))
+                Some(term(p, &q, &m.normal, &m.centroid))
             })
-            .collect()
+            .collect();
+        if let Some(edges) = edges.filter(|e| !e.is_empty()) {
+            let across: Vec<[Term; 2]> = scan
+                .edges
+                .par_iter()
+                .filter_map(|p| {
+                    let q = t + r * p;
+                    let line = edges.line_near(&q, gate)?;
+                    let first = line.direction.cross(&Vec3::x()).try_normalize(1e-6);
+                    let first = first.or_else(|| line.direction.cross(&Vec3::y()).try_normalize(1e-6))?;
+                    let second = line.direction.cross(&first);
+                    Some([term(p, &q, &first, &line.point), term(p, &q, &second, &line.point)])
+                })
+                .collect();
+            terms.extend(across.into_iter().flatten());
+        }
+        terms
     }
 
     /// The information of the points' covariance plus the floor's:
@@ -315,6 +448,12 @@ impl ScanMatcher {
         }
         (h, g)
     }
+}
+
+/// The farthest any of `points` (robot frame) moves between poses `a` and `b`.
+fn largest_shift(points: &[Vec3], a: &Pose3, b: &Pose3) -> f64 {
+    let relative = b.inverse() * a;
+    points.iter().map(|p| (relative.transform_point(&Point3::from(*p)) - Point3::from(*p)).norm()).fold(0.0, f64::max)
 }
 
 /// The information on x, y and yaw alone, height, roll and pitch
@@ -435,7 +574,7 @@ mod tests {
         face(-Vec3::y(), &|u, v| Vec3::new(-3.0 + 6.0 * u, 2.0, -1.0 + 3.0 * v), 400);
         face(-Vec3::x(), &|u, v| Vec3::new(2.0, 1.0 + u, -1.0 + v), 200);
         face(-Vec3::y(), &|u, v| Vec3::new(2.0 + u, 1.0, -1.0 + v), 200);
-        ScanPoints { points, normals }
+        ScanPoints { points, normals, edges: Vec::new() }
     }
 
     #[test]
@@ -452,8 +591,9 @@ mod tests {
         let scan = ScanPoints {
             points: seen.points.iter().map(|p| (inverse * Point3::from(*p)).coords).collect(),
             normals: seen.normals.iter().map(|n| inverse.rotation * n).collect(),
+            edges: Vec::new(),
         };
-        let fix = matcher.register(&map, &scan, &Vector6::zeros()).expect("a closed room registers");
+        let fix = matcher.register(&map, None, &scan, &Vector6::zeros()).expect("a closed room registers");
         let error = fix.difference(&crate::ekf::pose_entries(&truth));
         assert!(error.fixed_rows::<3>(0).norm() < 2e-3, "translation off by {error:?}");
         assert!(error.fixed_rows::<3>(3).norm() < 1e-3, "rotation off by {error:?}");
@@ -477,13 +617,67 @@ mod tests {
             points.extend([Vec3::new(u, -1.0, v), Vec3::new(u, 1.0, v), Vec3::new(u, 2.0 * v - 1.0, -0.5)]);
             normals.extend([Vec3::y(), -Vec3::y(), Vec3::z()]);
         }
-        let scan = ScanPoints { points, normals };
+        let scan = ScanPoints { points, normals, edges: Vec::new() };
         let matcher = ScanMatcher::new(ScanMatchConfig::default()).unwrap();
         let mut map = matcher.new_map();
         map.insert(&scan.points, &scan.normals, &Pose3::identity());
-        let fix = matcher.register(&map, &scan, &Vector6::new(0.1, 0.05, 0.0, 0.0, 0.0, 0.0)).unwrap();
+        let fix = matcher.register(&map, None, &scan, &Vector6::new(0.1, 0.05, 0.0, 0.0, 0.0, 0.0)).unwrap();
         assert!(fix.pose[1].abs() < 2e-3, "y is pinned by the walls: {}", fix.pose[1]);
         assert!(fix.information[(0, 0)] < 1e-6 * fix.information[(1, 1)], "x: {}", fix.information);
+    }
+
+    #[test]
+    fn an_edge_across_a_corridor_measures_its_axis() {
+        // The corridor above, and a door frame's vertical edge at x = 0.5
+        // on its left wall: the planes leave x free, the edge pins it.
+        let mut rng = ChaCha8Rng::seed_from_u64(14);
+        let (mut points, mut normals) = (Vec::new(), Vec::new());
+        for _ in 0..1500 {
+            let u = rng.random_range(-5.0..5.0);
+            let v = rng.random_range(0.0..1.0);
+            points.extend([Vec3::new(u, -1.0, v), Vec3::new(u, 1.0, v), Vec3::new(u, 2.0 * v - 1.0, -0.5)]);
+            normals.extend([Vec3::y(), -Vec3::y(), Vec3::z()]);
+        }
+        let edges: Vec<Vec3> = (0..100).map(|k| Vec3::new(0.5, -1.0, 0.01 * k as f64)).collect();
+        let matcher = ScanMatcher::new(ScanMatchConfig::default()).unwrap();
+        let (mut map, mut edge_map) = (matcher.new_map(), matcher.new_edge_map());
+        map.insert(&points, &normals, &Pose3::identity());
+        edge_map.insert(&edges, &Pose3::identity());
+        let scan = ScanPoints { points, normals, edges };
+        let start = Vector6::new(0.1, 0.05, 0.0, 0.0, 0.0, 0.0);
+        let fix = matcher.register(&map, Some(&edge_map), &scan, &start).unwrap();
+        assert!(fix.pose[0].abs() < 2e-3 && fix.pose[1].abs() < 2e-3, "x and y: {:?}", fix.pose);
+        assert!(fix.information[(0, 0)] > 1e-3 * fix.information[(1, 1)], "x: {}", fix.information);
+        let planes_only = matcher.register(&map, None, &scan, &start).unwrap();
+        assert!((planes_only.pose[0] - 0.1).abs() < 1e-9, "without the edge x stays: {}", planes_only.pose[0]);
+    }
+
+    #[test]
+    fn a_wide_baseline_registers_from_the_last_pose_when_the_carried_motion_misses() {
+        // The robot stopped 3 cm past its last pose; the motion carried on
+        // predicts 35 cm: beyond a 5 cm gate from the prediction.
+        let mut rng = ChaCha8Rng::seed_from_u64(15);
+        let narrow = ScanMatchConfig { max_distance_m: 0.05, ..ScanMatchConfig::default() };
+        let wide = ScanMatchConfig { wide_baseline_distance_m: Some(0.4), ..narrow.clone() };
+        let first = room(&mut rng);
+        let truth = Pose3::new(Vec3::new(0.03, 0.0, 0.0), Vec3::zeros());
+        let seen = room(&mut rng);
+        let inverse = truth.inverse();
+        let scan = ScanPoints {
+            points: seen.points.iter().map(|p| (inverse * Point3::from(*p)).coords).collect(),
+            normals: seen.normals.iter().map(|n| inverse.rotation * n).collect(),
+            edges: Vec::new(),
+        };
+        let predicted = Vector6::new(0.35, 0.0, 0.0, 0.0, 0.0, 0.0);
+        let x_after = |config: &ScanMatchConfig| {
+            let matcher = ScanMatcher::new(config.clone()).unwrap();
+            let mut map = matcher.new_map();
+            map.insert(&first.points, &first.normals, &Pose3::identity());
+            matcher.register_after(&map, None, &scan, &predicted, Some(&Pose3::identity())).map(|f| f.pose[0])
+        };
+        let found = x_after(&wide).expect("the wide registration finds the room");
+        assert!((found - 0.03).abs() < 2e-3, "wide: x = {found}");
+        assert!(x_after(&narrow).is_none_or(|x| (x - 0.03).abs() > 0.05), "narrow: x = {:?}", x_after(&narrow));
     }
 
     #[test]
@@ -500,11 +694,11 @@ mod tests {
             points.extend([Vec3::new(u, -1.0, v), Vec3::new(u, 1.0, v), floor]);
             normals.extend([Vec3::y(), -Vec3::y(), Vec3::new(-slope.sin(), 0.0, slope.cos())]);
         }
-        let scan = ScanPoints { points, normals };
+        let scan = ScanPoints { points, normals, edges: Vec::new() };
         let matcher = ScanMatcher::new(ScanMatchConfig::default()).unwrap();
         let mut map = matcher.new_map();
         map.insert(&scan.points, &scan.normals, &Pose3::identity());
-        let fix = matcher.register(&map, &scan, &Vector6::new(0.0, 0.05, 0.0, 0.0, 0.0, 0.0)).unwrap();
+        let fix = matcher.register(&map, None, &scan, &Vector6::new(0.0, 0.05, 0.0, 0.0, 0.0, 0.0)).unwrap();
         let i = &fix.information;
         assert!(fix.pose[1].abs() < 2e-3, "y is pinned by the walls: {}", fix.pose[1]);
         assert!(i[(0, 0)] < 1e-6 * i[(1, 1)], "x: {i}");
@@ -521,5 +715,9 @@ mod tests {
         assert_eq!(bad(&|c| c.max_distance_m = 0.8), "scan_match.max_distance_m");
         assert_eq!(bad(&|c| c.point_sigma_m = f64::NAN), "scan_match.point_sigma_m");
         assert_eq!(bad(&|c| c.min_correspondences = 2), "scan_match.min_correspondences");
+        assert_eq!(bad(&|c| c.wide_baseline_distance_m = Some(0.1)), "scan_match.wide_baseline_distance_m");
+        assert_eq!(bad(&|c| c.wide_baseline_distance_m = Some(0.6)), "scan_match.wide_baseline_distance_m");
+        assert_eq!(bad(&|c| c.edge_spacing_m = -1.0), "scan_match.edge_spacing_m");
+        assert_eq!(bad(&|c| c.edges_per_voxel = 0), "scan_match.edges_per_voxel");
     }
 }

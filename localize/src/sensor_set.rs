@@ -69,6 +69,11 @@ impl SensorSet {
             s.map_voxel_m = 0.2;
             s.map_spacing_m = 0.02;
             s.max_distance_m = 0.1;
+            // A handheld camera's motion is not the last frame's carried
+            // on: across a wide baseline the correspondences are searched
+            // wide first.
+            s.wide_baseline_distance_m = Some(0.2);
+            s.iterations = 20;
             s.point_sigma_m = 0.01;
             // Kinect-like depth is noisy beyond a metre or two: only the
             // flattest patches (edges and clutter give wrong normals).

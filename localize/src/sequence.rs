@@ -106,6 +106,9 @@ pub struct FrameInput {
     pub cloud: std::result::Result<PointCloud, String>,
     /// Why there is none when there is none.
     pub image: std::result::Result<FrameImage, String>,
+    /// Edge points in the 3D sensor's frame (`image_edges`): only an RGB-D
+    /// frame whose colour is registered to its depth has them.
+    pub edges: Vec<nalgebra::Point3<f32>>,
 }
 
 /// A recording localization can run on.
@@ -261,7 +264,7 @@ impl SensorSequence for RecordedSequence {
                 Some(file) => Ok(FrameImage::read(file.stamp, &file.path, &self.calibration.camera)),
                 None => Err(format!("no image within {} s of scan {:.6}", self.image_tolerance_s, frame.stamp)),
             };
-            visit(FrameInput { stamp: frame.stamp, cloud, image })?;
+            visit(FrameInput { stamp: frame.stamp, cloud, image, edges: Vec::new() })?;
         }
         Ok(())
     }

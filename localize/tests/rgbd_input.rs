@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 
 use datasets::math::{Pose3, Vec3};
 use localize::corner_source::CornerSource;
+use localize::image_edges::EdgeOptions;
 use localize::rgbd_sequence::{DepthOptions, RgbdLayout, RgbdSequence, optical_from_body};
 use localize::run::{metrics, run_sequence};
 use localize::sensor_set::{RangeSensor, SensorSet};
@@ -139,6 +140,15 @@ fn the_real_seven_scenes_and_tum_folders_read_as_published() {
     let cloud = first_cloud.unwrap();
     assert!(cloud.len() > 15_000 && cloud.len() <= 160 * 120, "{}", cloud.len());
     assert!(cloud.points.iter().all(|p| p.x >= 0.2 && p.x <= 4.0));
+    // Its colour camera is not registered to its depth: no edge points.
+    let mut seven_edges = 0;
+    seven
+        .for_each_frame(&mut |frame| {
+            seven_edges += frame.edges.len();
+            Ok(())
+        })
+        .unwrap();
+    assert_eq!(seven_edges, 0);
 
     let tum = RgbdSequence::open(&shared("tum_fr3_cabinet_keyframes"), &DepthOptions::default(), 0.02).unwrap();
     assert_eq!(tum.layout, RgbdLayout::Tum);
@@ -146,6 +156,28 @@ fn the_real_seven_scenes_and_tum_folders_read_as_published() {
     let c = &tum.calibration().camera;
     assert_eq!((c.fx, c.fy, c.cx, c.cy), (535.4, 539.2, 320.1, 247.6));
     assert_eq!(tum.ground_truth().unwrap().stamps[0], 1341841278.8427);
+    // TUM's depth is registered to its colour: the cabinet's outline lifts
+    // to edge points, in front of the camera within the depth range.
+    let mut edges = Vec::new();
+    tum.for_each_frame(&mut |frame| {
+        if edges.is_empty() {
+            edges = frame.edges;
+        }
+        Ok(())
+    })
+    .unwrap();
+    assert!(edges.len() > 300, "{} edge points", edges.len());
+    assert!(edges.iter().all(|p| p.x >= 0.2 && p.x <= 4.0));
+    let without =
+        DepthOptions { edges: EdgeOptions { enabled: false, ..EdgeOptions::default() }, ..DepthOptions::default() };
+    let tum = RgbdSequence::open(&shared("tum_fr3_cabinet_keyframes"), &without, 0.02).unwrap();
+    let mut count = 0;
+    tum.for_each_frame(&mut |frame| {
+        count += frame.edges.len();
+        Ok(())
+    })
+    .unwrap();
+    assert_eq!(count, 0, "edges switched off");
 }
 
 /// The rendered room as a ROS 2 recording: 16UC1 depth images with their
