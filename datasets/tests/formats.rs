@@ -281,6 +281,15 @@ fn tum_round_trips_and_reports_bad_lines() {
     std::fs::write(&path, "1.0 0 0 0 0 0 0 1\n1.0 1 0 0 0 0 0 1\n").unwrap();
     let dup = read_tum(&path).unwrap();
     assert!(message(dup.check_increasing(&path).unwrap_err()).contains("duplicate timestamp at pose 1"));
+    // As TUM's motion-capture files have them: one stamp, poses 1 mm and 0.6 degrees apart.
+    std::fs::write(&path, "1.0 0 0 0 0 0 0 1\n1.0 0.001 0 0 0.0052 0 0 1\n2.0 0 0 0 0 0 0 1\n").unwrap();
+    assert_eq!(read_tum(&path).unwrap().check_increasing(&path).unwrap(), 1);
+    // 2 degrees apart is past the tolerance.
+    std::fs::write(&path, "1.0 0 0 0 0 0 0 1\n1.0 0 0 0 0.0175 0 0 1\n").unwrap();
+    let m = message(read_tum(&path).unwrap().check_increasing(&path).unwrap_err());
+    assert!(m.contains("2.01 degrees apart") && m.contains("at most 0.01 m and 1 degree"), "{m}");
+    std::fs::write(&path, "2.0 0 0 0 0 0 0 1\n1.0 0 0 0 0 0 0 1\n").unwrap();
+    assert!(message(read_tum(&path).unwrap().check_increasing(&path).unwrap_err()).contains("decreasing"));
 }
 
 #[test]

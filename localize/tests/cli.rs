@@ -85,6 +85,21 @@ fn bad_input_gives_a_message_naming_the_file() {
     }
 }
 
+#[test]
+fn a_real_tum_ground_truth_with_a_stamp_written_twice_scores_as_evo_scores_it() {
+    // fr2_desk's motion capture has 1311868229.5760 twice, 1.2 mm and 0.6 degrees apart.
+    let gt = shared("evo_trajectories/fr2_desk_groundtruth.txt");
+    let est = shared("evo_trajectories/fr2_desk_ORB.txt");
+    let out = localize(&["eval", "--gt", &gt, "--est", &est, "--align", "se3", "--json"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(err.contains("fr2_desk_groundtruth.txt: 1 time stamp(s) written twice"), "{err}");
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let ate = json["ate_rmse"].as_f64().unwrap();
+    // evo_ape tum fr2_desk_groundtruth.txt fr2_desk_ORB.txt -a: rmse 0.008119.
+    assert!((ate - 0.0081190).abs() < 1e-6, "{json}");
+}
+
 fn recording(name: &str) -> String {
     format!("{}/../datasets/tests/data/recordings/{name}", manifest_dir().display())
 }

@@ -34,20 +34,48 @@ impl Trajectory {
     pub fn positions(&self) -> impl Iterator<Item = Vec3> + '_ {
         self.poses.iter().map(|p| p.translation.vector)
     }
-    /// Fails unless timestamps strictly increase (inputs of localization must).
-    pub fn check_increasing(&self, path: &Path) -> Result<()> {
+    /// Fails unless timestamps increase. A stamp written twice passes where
+    /// its two poses agree within `DUPLICATE_TOLERANCE_M` and
+    /// `DUPLICATE_TOLERANCE_DEG` (TUM's motion-capture files have such pairs,
+    /// about a millimetre apart; evo reads them as they are); farther apart,
+    /// which pose is meant is unknown and it is an error. Returns how many
+    /// stamps passed twice.
+    pub fn check_increasing(&self, path: &Path) -> Result<usize> {
+        let mut repeated = 0;
         for (k, w) in self.stamps.windows(2).enumerate() {
-            if w[1] <= w[0] {
-                let what = if w[1] == w[0] { "duplicate" } else { "decreasing" };
+            if w[1] > w[0] {
+                continue;
+            }
+            if w[1] < w[0] {
                 return Err(DataError::invalid(
                     path,
-                    format!("{what} timestamp at pose {}: {} after {}", k + 1, w[1], w[0]),
+                    format!("decreasing timestamp at pose {}: {} after {}", k + 1, w[1], w[0]),
                 ));
             }
+            let (a, b) = (&self.poses[k], &self.poses[k + 1]);
+            let apart_m = (a.translation.vector - b.translation.vector).norm();
+            let apart_deg = a.rotation.angle_to(&b.rotation).to_degrees();
+            if !(apart_m <= DUPLICATE_TOLERANCE_M && apart_deg <= DUPLICATE_TOLERANCE_DEG) {
+                return Err(DataError::invalid(
+                    path,
+                    format!(
+                        "duplicate timestamp at pose {}: {} twice, the poses {apart_m:.4} m and {apart_deg:.2} degrees \
+                         apart (at most {DUPLICATE_TOLERANCE_M} m and {DUPLICATE_TOLERANCE_DEG} degree are read as one)",
+                        k + 1,
+                        w[1]
+                    ),
+                ));
+            }
+            repeated += 1;
         }
-        Ok(())
+        Ok(repeated)
     }
 }
+
+/// How far apart two poses written at one stamp may be and still be read
+/// (`Trajectory::check_increasing`).
+pub const DUPLICATE_TOLERANCE_M: f64 = 0.01;
+pub const DUPLICATE_TOLERANCE_DEG: f64 = 1.0;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum TrajectoryFormat {

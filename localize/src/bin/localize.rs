@@ -276,7 +276,15 @@ fn trajectory_input(path: &Path, topic: Option<&str>, flag: &str) -> Result<data
     let trajectory = read_trajectory_input(path, topic, flag)?;
     // Duplicate stamps with other poses, or poses out of order, would be
     // matched to the wrong partner without a word.
-    trajectory.check_increasing(path)?;
+    let repeated = trajectory.check_increasing(path)?;
+    if repeated > 0 {
+        eprintln!(
+            "note: {}: {repeated} time stamp(s) written twice with poses within {} m and {} degree, read as they are",
+            path.display(),
+            datasets::formats::trajectory::DUPLICATE_TOLERANCE_M,
+            datasets::formats::trajectory::DUPLICATE_TOLERANCE_DEG
+        );
+    }
     Ok(trajectory)
 }
 
