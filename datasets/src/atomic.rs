@@ -138,7 +138,15 @@ pub fn read_text(path: &Path) -> Result<String> {
 /// Reads and decodes an image, naming the file in the error.
 pub fn read_image(path: &Path) -> Result<image::DynamicImage> {
     let bytes = read_bytes(path)?;
-    image::load_from_memory(&bytes).map_err(|e| DataError::image(path, e))
+    let reader = || {
+        image::ImageReader::new(std::io::Cursor::new(&bytes)).with_guessed_format().map_err(|e| DataError::io(path, e))
+    };
+    // The size from the header first: decoding is where a small file becomes gigabytes.
+    let (width, height) = reader()?.into_dimensions().map_err(|e| DataError::image(path, e))?;
+    crate::image_size::check(width, height).map_err(|why| DataError::invalid(path, why))?;
+    let mut decoder = reader()?;
+    decoder.limits(crate::image_size::limits());
+    decoder.decode().map_err(|e| DataError::image(path, e))
 }
 
 #[cfg(all(test, unix))]

@@ -15,6 +15,7 @@ pub mod error;
 pub mod fingerprint;
 pub mod formats;
 pub mod generate;
+pub mod image_size;
 pub mod invalid_setting;
 pub mod math;
 pub mod plot;

@@ -28,10 +28,6 @@ fn layout(encoding: &str) -> Option<(usize, &'static str)> {
     })
 }
 
-/// Largest side of an image taken from a recording (a 16k camera is bigger
-/// than anything localization needs; a larger header is corrupt).
-const MAX_SIDE: u32 = 16384;
-
 /// The fields of a `sensor_msgs/Image` with its size, step and data length
 /// checked against its encoding's bytes per pixel.
 struct RawImage<'a> {
@@ -56,9 +52,7 @@ impl<'a> RawImage<'a> {
         let step = r.u32()? as usize;
         let data = r.byte_sequence()?;
         let bpp = bytes_per_pixel(&encoding)?;
-        ensure(width > 0 && height > 0 && width <= MAX_SIDE && height <= MAX_SIDE, || {
-            format!("image size {width}x{height} is empty or larger than {MAX_SIDE} on a side")
-        })?;
+        crate::image_size::check(width, height).map_err(wire_error)?;
         let (w, h) = (width as usize, height as usize);
         ensure(step >= w * bpp, || format!("step {step} is less than width {width} x {bpp} bytes"))?;
         ensure(data.len() >= step * (h - 1) + w * bpp, || {
@@ -159,7 +153,7 @@ pub fn compressed_image(r: &mut dyn WireReader<'_>) -> WireResult<ImageMessage> 
         .filter(|f| matches!(f, image::ImageFormat::Jpeg | image::ImageFormat::Png))
         .ok_or_else(|| wire_error(format!("compressed image (format `{format}`) is neither JPEG nor PNG data")))?;
     let mut reader = image::ImageReader::with_format(std::io::Cursor::new(data), kind);
-    reader.limits(image::Limits::default());
+    reader.limits(crate::image_size::limits());
     let image = reader.decode().map_err(|e| wire_error(format!("compressed image (format `{format}`): {e}")))?;
     Ok(ImageMessage { header, image })
 }
