@@ -75,7 +75,9 @@ mod tests {
         let mut header = 20_000u32.to_be_bytes().to_vec();
         header.extend(20_000u32.to_be_bytes());
         header.extend([8, 0, 0, 0, 0]);
-        let png = [b"\x89PNG\r\n\x1a\n".to_vec(), chunk(b"IHDR", &header), chunk(b"IDAT", &EMPTY_ZLIB), chunk(b"IEND", &[])].concat();
+        let png =
+            [b"\x89PNG\r\n\x1a\n".to_vec(), chunk(b"IHDR", &header), chunk(b"IDAT", &EMPTY_ZLIB), chunk(b"IEND", &[])]
+                .concat();
         std::fs::write(&path, png).unwrap();
         let error = crate::atomic::read_image(&path).unwrap_err().to_string();
         assert!(error.contains("huge.png") && error.contains("20000x20000"), "{error}");
@@ -83,7 +85,9 @@ mod tests {
         let mut small = 200u32.to_be_bytes().to_vec();
         small.extend(100u32.to_be_bytes());
         small.extend([8, 0, 0, 0, 0]);
-        let png = [b"\x89PNG\r\n\x1a\n".to_vec(), chunk(b"IHDR", &small), chunk(b"IDAT", &EMPTY_ZLIB), chunk(b"IEND", &[])].concat();
+        let png =
+            [b"\x89PNG\r\n\x1a\n".to_vec(), chunk(b"IHDR", &small), chunk(b"IDAT", &EMPTY_ZLIB), chunk(b"IEND", &[])]
+                .concat();
         std::fs::write(&path, png).unwrap();
         let error = crate::atomic::read_image(&path).unwrap_err().to_string();
         assert!(!error.contains("megapixels"), "{error}");

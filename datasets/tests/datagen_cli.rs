@@ -20,8 +20,18 @@ fn bad_flags_and_settings_are_named() {
     assert!(!ok && err.contains("--speed") && err.contains("fast"), "{err}");
     let (ok, err) = datagen(&["--out", o, "--images", "10", "--train", "20"]);
     assert!(!ok && err.contains("detection.train: 20 is larger than the 10 images"), "{err}");
-    let (ok, err) = datagen(&["--out", o, "--frames", "0"]);
-    assert!(!ok && err.contains("sequence.frames: must be at least 1"), "{err}");
+    for frames in ["0", "-1"] {
+        let (ok, err) = datagen(&["--out", o, "--frames", frames]);
+        assert!(!ok && err.contains("--frames") && err.contains("at least 1"), "{err}");
+    }
+    // Sizes that would fill the disk are refused before anything is written.
+    let (ok, err) = datagen(&["--out", o, "--frames", "99999999999"]);
+    assert!(!ok && err.contains("sequence.frames: 99999999999 outside 1..=100000"), "{err}");
+    let (ok, err) = datagen(&["--out", o, "--images", "99999999999", "--train", "1"]);
+    assert!(!ok && err.contains("detection.images: 99999999999 outside 0..=100000"), "{err}");
+    // A corridor of no length is not the paper's building.
+    let (ok, err) = datagen(&["--out", o, "--corridor", "0"]);
+    assert!(!ok && err.contains("--corridor") && err.contains("above 0"), "{err}");
     let (ok, err) = datagen(&["--out", o, "--building", "2000000"]);
     assert!(!ok && err.contains("world.building: 2000000 outside"), "{err}");
     let (ok, err) = datagen(&["--out", o, "--building", "-3"]);

@@ -409,6 +409,9 @@ pub fn parse_buildings(text: &str) -> std::result::Result<Vec<u32>, String> {
     for part in text.split(',').map(str::trim) {
         let number =
             |s: &str| s.trim().parse::<u32>().map_err(|_| format!("`{s}` in `{text}` is not a building number"));
+        if part.starts_with('-') {
+            return Err(format!("`{part}`: building numbers are whole numbers from 0 (0: the paper's building)"));
+        }
         match part.split_once('-') {
             Some((a, b)) => {
                 let (a, b) = (number(a)?, number(b)?);

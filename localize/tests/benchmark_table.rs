@@ -11,6 +11,7 @@ fn building_and_speed_lists_parse_or_name_the_bad_part() {
     assert_eq!(parse_buildings("2, 4,7-8").unwrap(), vec![2, 4, 7, 8]);
     assert!(parse_buildings("1-x").unwrap_err().contains("`x`"));
     assert!(parse_buildings("5-1").unwrap_err().contains("5-1"));
+    assert!(parse_buildings("-3").unwrap_err().contains("`-3`: building numbers are whole numbers from 0"));
     assert!(parse_buildings("1-100000").is_err());
     assert_eq!(parse_speeds("0.05,0.5,1.0").unwrap(), vec![0.05, 0.5, 1.0]);
     assert!(parse_speeds("0.5,fast").unwrap_err().contains("`fast`"));

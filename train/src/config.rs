@@ -95,6 +95,11 @@ fn yes() -> bool {
 /// learning and comparing runs).
 pub const WHOLE_NETWORK_LR: f64 = 2e-4;
 
+/// The most epochs a run may ask for.
+pub const MAX_EPOCHS: usize = 10_000;
+/// The largest batch (images a step).
+pub const MAX_BATCH: usize = 4096;
+
 impl TrainConfig {
     /// Defaults measured to work on the default data (see the README).
     pub fn new(backbone: Backbone, width: f32, data: PathBuf) -> Self {
@@ -135,12 +140,9 @@ impl TrainConfig {
 
     pub fn validate(&self) -> Result<(), InvalidSetting> {
         self.detector.validate().map_err(|e| e.within("detector"))?;
-        if self.epochs == 0 {
-            return Err(InvalidSetting::field("epochs", "must be at least 1"));
-        }
-        if self.batch_size == 0 {
-            return Err(InvalidSetting::field("batch_size", "must be at least 1"));
-        }
+        // Bounds a run can reach: a typo of a few zeros would never end.
+        InvalidSetting::count("epochs", self.epochs, 1, MAX_EPOCHS)?;
+        InvalidSetting::count("batch_size", self.batch_size, 1, MAX_BATCH)?;
         if !(self.lr > 0.0 && self.lr < 1.0) {
             return Err(InvalidSetting::field("lr", format!("{} outside (0, 1)", self.lr)));
         }

@@ -99,11 +99,23 @@ impl RunFolder {
         let path = self.config_path();
         let text = datasets::atomic::read_text(&path).map_err(TrainError::NothingToResume)?;
         let config: TrainConfig = parse_json(&path, "settings", &text)?;
+        // A settings file edited by hand is checked as the command line is.
+        config.validate().map_err(|e| datasets::DataError::setting(&path, e))?;
         let state_path = self.resume_dir().join(STATE_FILE);
         if !state_path.is_file() {
             return Ok((config, None));
         }
         let state: ResumeState = read_json(&state_path, "state")?;
+        // A state is written after a completed epoch, and a run stops after its last.
+        if !(1..=config.epochs).contains(&state.epochs_done) {
+            return Err(TrainError::Folder {
+                path: state_path,
+                what: format!(
+                    "says {} epochs are done of the {} the settings ask for: not a state this run wrote",
+                    state.epochs_done, config.epochs
+                ),
+            });
+        }
         let log = LossLog::parse(&state.csv).map_err(|what| TrainError::LossLog { path: state_path, what })?;
         Ok((config, Some(Progress { epochs_done: state.epochs_done, elapsed_s: state.elapsed_s, log })))
     }

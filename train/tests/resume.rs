@@ -17,6 +17,27 @@ fn an_interrupted_run_resumes_to_the_same_losses() {
         train::trainer::train_until(Some(tiny_config(Backbone::Alexnet, 3)), parts.path(), false, Some(1)).unwrap();
     assert!(stopped.is_none());
     assert_eq!(train_losses(parts.path()).len(), 2, "one epoch of two iterations logged");
+    // A state or settings file edited into what this run cannot have written is refused, naming it.
+    let folder = train::RunFolder::new(parts.path());
+    let state_path = parts.path().join("resume/state.json");
+    let config_path = parts.path().join("train_config.json");
+    let (state, config) =
+        (std::fs::read_to_string(&state_path).unwrap(), std::fs::read_to_string(&config_path).unwrap());
+    let edit = |path: &std::path::Path, text: &str, key: &str, value: u64| {
+        let mut json: serde_json::Value = serde_json::from_str(text).unwrap();
+        json[key] = value.into();
+        std::fs::write(path, json.to_string()).unwrap();
+    };
+    for (done, why) in [(99, "says 99 epochs are done of the 3"), (0, "says 0 epochs are done of the 3")] {
+        edit(&state_path, &state, "epochs_done", done);
+        let error = folder.read_for_resume().unwrap_err().to_string();
+        assert!(error.contains("state.json") && error.contains(why), "{error}");
+    }
+    std::fs::write(&state_path, &state).unwrap();
+    edit(&config_path, &config, "epochs", 1_000_000_000);
+    let error = format!("{:#}", anyhow::Error::from(folder.read_for_resume().unwrap_err()));
+    assert!(error.contains("train_config.json") && error.contains("1000000000 outside 1..=10000"), "{error}");
+    std::fs::write(&config_path, &config).unwrap();
     // Killed between the two renames that replace the resume state, with a
     // temporary folder and file left behind.
     let run = parts.path();
@@ -77,6 +98,11 @@ fn bad_flags_and_unusable_folders_get_messages_that_name_them() {
             "{message}"
         );
     }
+    // A count that would never end is refused before any work.
+    let out = dir.path().join("run");
+    let message = train(&[&base[..], &["--out", out.to_str().unwrap(), "--epochs", "1000000000"]].concat());
+    assert!(message.contains("epochs: 1000000000 outside 1..=10000"), "{message}");
+    assert!(!out.exists(), "nothing written");
     // An output that is a file: the error names it (not a bare "File exists"),
     // and an ordinary error prints no backtrace even with RUST_BACKTRACE set.
     let file = dir.path().join("a-file");

@@ -31,10 +31,10 @@ struct Args {
     /// Instead of a building, one straight featureless corridor this many
     /// metres long (the hard case of LIDAR odometry), with a generated
     /// building's robot timing unless --config sets its own.
-    #[arg(long, value_name = "METRES", conflicts_with = "building")]
+    #[arg(long, value_name = "METRES", conflicts_with = "building", value_parser = datasets::cli::positive)]
     corridor: Option<f64>,
     /// Scans of the sequence (default: the whole route once, at most 3000 scans in a generated building).
-    #[arg(long)]
+    #[arg(long, value_parser = datasets::cli::positive_count)]
     frames: Option<usize>,
     /// Robot speed in m/s (default 0.05, the paper's).
     #[arg(long)]
@@ -48,10 +48,10 @@ struct Args {
     #[arg(long)]
     rate: Option<f64>,
     /// Detection images in all (default 300).
-    #[arg(long)]
+    #[arg(long, value_parser = datasets::cli::count)]
     images: Option<usize>,
     /// Detection images in the training split (default 200; the rest is the test split).
-    #[arg(long)]
+    #[arg(long, value_parser = datasets::cli::count)]
     train: Option<usize>,
     /// Also write the sequence as a ROS 2 recording (one MCAP file) here.
     #[arg(long)]

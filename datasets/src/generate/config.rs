@@ -101,6 +101,11 @@ impl Default for SequenceConfig {
     }
 }
 
+/// The most detection images one run may write.
+pub const MAX_IMAGES: usize = 100_000;
+/// The most sequence frames one run may write (about three hours at 10 Hz).
+pub const MAX_FRAMES: usize = 100_000;
+
 impl DatagenConfig {
     /// The settings for building `number`: the paper's for 0; for a
     /// generated building, a robot's sensors on their own clocks: a spinning
@@ -157,11 +162,14 @@ impl DatagenConfig {
         if !(s.rate_hz > 0.0 && s.rate_hz <= 100.0) {
             return Err(InvalidSetting::field("sequence.rate_hz", format!("{} Hz outside (0, 100]", s.rate_hz)));
         }
-        if s.frames == Some(0) {
-            return Err(InvalidSetting::field("sequence.frames", "must be at least 1"));
+        // Bounds checked before anything is written: a few zeros too many
+        // would fill the disk.
+        InvalidSetting::count("detection.images", d.images, 0, MAX_IMAGES)?;
+        if let Some(frames) = s.frames {
+            InvalidSetting::count("sequence.frames", frames, 1, MAX_FRAMES)?;
         }
-        if s.max_scans == Some(0) {
-            return Err(InvalidSetting::field("sequence.max_scans", "must be at least 1"));
+        if let Some(scans) = s.max_scans {
+            InvalidSetting::count("sequence.max_scans", scans, 1, MAX_FRAMES)?;
         }
         if let Some(rate) = s.camera_rate_hz
             && !(rate > 0.0 && rate <= 100.0)

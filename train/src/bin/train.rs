@@ -145,6 +145,8 @@ fn run_main() -> Result<()> {
             c.pretrained_prune = args.pretrained_prune;
             c.freeze = args.freeze;
             c.cache_frozen = !args.no_cache;
+            // Settings are checked before the run folder exists.
+            c.validate().map_err(train::TrainError::Settings)?;
             (Some(c), out.clone())
         }
         _ => bail!("give --backbone, --data and --out, or --resume RUN_DIR"),
