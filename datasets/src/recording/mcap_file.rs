@@ -29,11 +29,17 @@ fn encoding(path: &Path, topic: &str, name: &str) -> Result<Encoding> {
 pub const MAX_RECORD_BYTES: usize = 1 << 29;
 
 /// Every message in file order, through the crate's sans-io reader, which
-/// (unlike its `MessageStream`) takes a bound on record and chunk sizes.
+/// (unlike its `MessageStream`) takes a bound on record and chunk sizes;
+/// CRCs are checked where the writer stored them (a zero CRC means none).
 fn for_each_message(path: &Path, bytes: &[u8], f: &mut dyn FnMut(mcap::Message<'_>) -> Result<()>) -> Result<()> {
     use mcap::sans_io::{LinearReaderOptions, MessageReadEvent, MessageReader};
-    let mut reader =
-        MessageReader::new_with_options(LinearReaderOptions::default().with_record_length_limit(MAX_RECORD_BYTES));
+    // Every chunk's CRC before any of its messages, and the data section's:
+    // a flipped bit inside a chunk would otherwise move a trajectory silently.
+    let options = LinearReaderOptions::default()
+        .with_record_length_limit(MAX_RECORD_BYTES)
+        .with_prevalidate_chunk_crcs(true)
+        .with_validate_data_section_crc(true);
+    let mut reader = MessageReader::new_with_options(options);
     let mut rest = bytes;
     while let Some(event) = reader.next_event() {
         match event.map_err(|e| mcap_error(path, e))? {
@@ -120,4 +126,51 @@ pub fn topics(path: &Path, bytes: &[u8]) -> Result<Vec<TopicInfo>> {
 /// Visits every message in file order.
 pub fn visit(path: &Path, bytes: &[u8], visit: &mut RawVisitor<'_>) -> Result<()> {
     for_each_message(path, bytes, &mut |m| visit(&m.channel.topic, m.log_time as i64, &m.data))
+}
+
+#[cfg(test)]
+mod crc_tests {
+    use std::collections::BTreeMap;
+
+    /// An uncompressed MCAP of three messages whose payload is `payload`.
+    fn written(payload: &[u8]) -> Vec<u8> {
+        let mut out = std::io::Cursor::new(Vec::new());
+        let mut writer = mcap::WriteOptions::new().compression(None).create(&mut out).unwrap();
+        let schema = writer.add_schema("std_msgs/msg/String", "ros2msg", b"string data").unwrap();
+        let channel = writer.add_channel(schema, "/chatter", "cdr", &BTreeMap::new()).unwrap();
+        for sequence in 0..3 {
+            let header = mcap::records::MessageHeader { channel_id: channel, sequence, log_time: 10, publish_time: 10 };
+            writer.write_to_known_channel(&header, payload).unwrap();
+        }
+        writer.finish().unwrap();
+        drop(writer);
+        out.into_inner()
+    }
+
+    #[test]
+    fn a_bit_flipped_inside_a_chunk_is_an_error_naming_the_file_not_a_changed_message() {
+        let payload = b"a payload whose bytes are found in the file";
+        let bytes = written(payload);
+        let path = std::path::Path::new("flipped.mcap");
+        let mut seen = Vec::new();
+        super::visit(path, &bytes, &mut |_, _, data| {
+            seen.push(data.to_vec());
+            Ok(())
+        })
+        .unwrap();
+        assert_eq!(seen, vec![payload.to_vec(); 3]);
+        // One bit of the second message's payload, inside the (uncompressed) chunk.
+        let mut flipped = bytes.clone();
+        let at = flipped.windows(payload.len()).enumerate().filter(|(_, w)| *w == payload).nth(1).unwrap().0;
+        flipped[at + 5] ^= 0x04;
+        let mut delivered = 0;
+        let error = super::visit(path, &flipped, &mut |_, _, _| {
+            delivered += 1;
+            Ok(())
+        })
+        .unwrap_err()
+        .to_string();
+        assert!(error.contains("flipped.mcap") && error.to_lowercase().contains("crc"), "{error}");
+        assert_eq!(delivered, 0, "no message of the damaged chunk is delivered");
+    }
 }
