@@ -31,19 +31,33 @@ impl PinholeCamera {
         Self { width: 640, height: 480, fx: 525.0, fy: 525.0, cx: 319.5, cy: 239.5 }
     }
 
+    /// A camera that can exist: its size within the image bound, focal
+    /// lengths from one pixel to a hundred image widths (a long telephoto
+    /// lens is about ten), the principal point no farther than an image size
+    /// outside the image.
     pub fn validate(&self) -> Result<(), InvalidSetting> {
+        crate::image_size::check(self.width, self.height).map_err(InvalidSetting::between)?;
+        let longest = f64::from(self.width.max(self.height));
         for (field, focal) in [("fx", self.fx), ("fy", self.fy)] {
-            if !(focal.is_finite() && focal > 0.0) {
-                return Err(InvalidSetting::field(field, format!("focal length {focal} must be finite and positive")));
+            if !(focal.is_finite() && (1.0..=100.0 * longest).contains(&focal)) {
+                return Err(InvalidSetting::field(
+                    field,
+                    format!("focal length {} px outside [1, {}] (100 image widths)", readable(focal), 100.0 * longest),
+                ));
             }
         }
-        for (field, centre) in [("cx", self.cx), ("cy", self.cy)] {
-            if !centre.is_finite() {
-                return Err(InvalidSetting::field(field, format!("principal point {centre} must be finite")));
+        for (field, centre, size) in [("cx", self.cx, self.width), ("cy", self.cy, self.height)] {
+            let size = f64::from(size);
+            if !(centre.is_finite() && (-size..=2.0 * size).contains(&centre)) {
+                return Err(InvalidSetting::field(
+                    field,
+                    format!(
+                        "principal point {} outside [-{size}, {}] (an image size beyond the image)",
+                        readable(centre),
+                        2.0 * size
+                    ),
+                ));
             }
-        }
-        if self.width == 0 || self.height == 0 {
-            return Err(InvalidSetting::between(format!("image size {}x{} is empty", self.width, self.height)));
         }
         Ok(())
     }
@@ -66,6 +80,11 @@ impl PinholeCamera {
     pub fn contains(&self, uv: [f64; 2]) -> bool {
         uv[0] >= 0.0 && uv[1] >= 0.0 && uv[0] < self.width as f64 && uv[1] < self.height as f64
     }
+}
+
+/// A number as a person reads it: exponent notation when huge.
+fn readable(value: f64) -> String {
+    if value.abs() < 1e6 { format!("{value}") } else { format!("{value:e}") }
 }
 
 #[cfg(test)]

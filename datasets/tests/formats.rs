@@ -382,7 +382,13 @@ fn calibration_round_trips_and_rejects_bad_matrices() {
     let text = std::fs::read_to_string(&path).unwrap();
     std::fs::write(&path, text.replacen("525.0", "-1.0", 1)).unwrap();
     let focal = message(read_calibration(&path).unwrap_err());
-    assert!(focal.contains("camera.fx: focal length -1 must be finite and positive"), "{focal}");
+    assert!(focal.contains("camera.fx: focal length -1 px outside [1, 64000]"), "{focal}");
+    // Absurd but finite: a focal length of 1e300 pixels, a principal point a kilometre of pixels away.
+    for (from, to, expected) in [("525.0", "1e300", "camera.fx: focal length 1e300"), ("319.5", "1e6", "camera.cx")] {
+        std::fs::write(&path, text.replacen(from, to, 1)).unwrap();
+        let m = message(read_calibration(&path).unwrap_err());
+        assert!(m.contains("calib.json") && m.contains(expected), "{m}");
+    }
     let bad = r#"{"camera": {"width": 640, "height": 480, "fx": 525, "fy": 525, "cx": 319.5, "cy": 239.5},
         "camera_from_lidar": [[2,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}"#;
     std::fs::write(&path, bad).unwrap();
