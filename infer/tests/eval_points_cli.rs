@@ -71,6 +71,23 @@ fn the_shipped_detector_and_the_classic_corners_are_scored_on_york_urban_photos(
     let message = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && message.contains("P1020826.csv"), "{message}");
 
+    // A label off the photo (another image's, or another size's) is named, not counted as a miss.
+    let shifted = dir.path().join("shifted");
+    std::fs::create_dir(&shifted).unwrap();
+    for name in ["P1020826", "P1020830"] {
+        std::fs::copy(p.join(format!("{name}.csv")), shifted.join(format!("{name}.csv"))).unwrap();
+    }
+    let text = std::fs::read_to_string(shifted.join("P1020830.csv")).unwrap();
+    std::fs::write(shifted.join("P1020830.csv"), format!("{}700.5,20\n", text)).unwrap();
+    let out = infer(&["eval-points", "--checkpoint", c, "--images", i, "--points", shifted.to_str().unwrap()]);
+    let message = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success()
+            && message.contains("P1020830.csv")
+            && message.contains("(700.5, 20) lies outside the 640x480"),
+        "{message}"
+    );
+
     // No labelled photo, a bad radius: named refusals.
     let empty = dir.path().join("empty");
     std::fs::create_dir(&empty).unwrap();

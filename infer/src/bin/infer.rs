@@ -238,12 +238,26 @@ fn eval_points(args: EvalPointsArgs) -> Result<()> {
     for (k, (photo, labels_path)) in photos.iter().enumerate() {
         let image = datasets::atomic::read_image(photo)?;
         let labels: Vec<[f32; 2]> = read_point_labels(labels_path)?.into_iter().map(|l| l.point).collect();
+        // A label off the photo belongs to another image: it would count as a miss of every method.
+        let (w, h) = (image.width() as f32, image.height() as f32);
+        if let Some((n, p)) =
+            labels.iter().enumerate().find(|(_, p)| !(0.0..=w).contains(&p[0]) || !(0.0..=h).contains(&p[1]))
+        {
+            bail!(
+                "{}: point {} ({}, {}) lies outside the {w}x{h} photo {}",
+                labels_path.display(),
+                n + 1,
+                // As the file has it (MATLAB's pixels, centres at whole numbers).
+                p[0] + 0.5,
+                p[1] + 0.5,
+                photo.display()
+            );
+        }
         let detections = detector.detect(&image);
         let detected: Vec<[f32; 2]> =
             detections.iter().map(|d| [(d.bbox.x1 + d.bbox.x2) / 2.0, (d.bbox.y1 + d.bbox.y2) / 2.0]).collect();
         let count = detected.len();
         let gray = image.to_luma8();
-        let (w, h) = (image.width() as f32, image.height() as f32);
         // Random points from a generator seeded by the image's place in the list.
         let mut state = 0x9E37_79B9_7F4A_7C15u64 ^ k as u64;
         let mut uniform = || {
