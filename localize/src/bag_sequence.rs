@@ -288,6 +288,7 @@ impl BagSequence {
             notes
                 .push(format!("skipped {} messages that repeat their topic's previous stamp", pass.dropped_duplicates));
         }
+        notes.extend(pass.tf.conflicts().iter().map(|c| format!("tf_static    {c} (--calib sets one)")));
         let base = options.base_frame.clone().unwrap_or_else(|| "base_link".to_string());
         let (calibration, undistort) = Self::calibration(&recording, &roles, &pass, &base, options, &mut notes)?;
         let depth_camera = match (roles.range, &pass.depth_info) {

@@ -11,7 +11,13 @@ use crate::recording::messages::geometry::Transform;
 pub struct TfTree {
     /// parent -> child -> parent_from_child; static edges win over dynamic ones.
     edges: BTreeMap<(String, String), (Pose3, bool)>,
+    /// Static edges given again with another pose: what was kept and how far the other was.
+    conflicts: Vec<String>,
 }
+
+/// A static edge given again within these of the first is the same edge.
+const SAME_EDGE_M: f64 = 1e-3;
+const SAME_EDGE_DEG: f64 = 0.1;
 
 /// `frame_id`s are compared without a leading `/` (ROS 1 wrote `/base_link`).
 fn frame(name: &str) -> String {
@@ -22,7 +28,16 @@ impl TfTree {
     pub fn add(&mut self, transform: &Transform, is_static: bool) {
         let key = (frame(&transform.header.frame_id), frame(&transform.child_frame_id));
         match self.edges.get(&key) {
-            Some((_, true)) => {}
+            Some((kept, true)) => {
+                let apart_m = (kept.translation.vector - transform.parent_from_child.translation.vector).norm();
+                let apart_deg = kept.rotation.angle_to(&transform.parent_from_child.rotation).to_degrees();
+                if is_static && !(apart_m <= SAME_EDGE_M && apart_deg <= SAME_EDGE_DEG) {
+                    self.conflicts.push(format!(
+                        "{} -> {} given twice, {apart_m:.3} m and {apart_deg:.2} degrees apart: the first is used",
+                        key.0, key.1
+                    ));
+                }
+            }
             Some((_, false)) if !is_static => {}
             _ => {
                 self.edges.insert(key, (transform.parent_from_child, is_static));
@@ -32,6 +47,11 @@ impl TfTree {
 
     pub fn is_empty(&self) -> bool {
         self.edges.is_empty()
+    }
+
+    /// Static edges the recording gave again with another pose.
+    pub fn conflicts(&self) -> &[String] {
+        &self.conflicts
     }
 
     pub fn frames(&self) -> BTreeSet<String> {
@@ -72,5 +92,36 @@ impl TfTree {
             }
         }
         found.get(&target).copied()
+    }
+}
+
+#[cfg(test)]
+mod conflict_tests {
+    use super::*;
+    use crate::math::Vec3;
+    use crate::recording::wire::Header;
+
+    fn edge(x: f64, yaw: f64) -> Transform {
+        Transform {
+            header: Header { stamp_ns: 0, frame_id: "/base_link".into() },
+            child_frame_id: "lidar".into(),
+            parent_from_child: Pose3::new(Vec3::new(x, 0.0, 0.3), Vec3::new(0.0, 0.0, yaw)),
+        }
+    }
+
+    #[test]
+    fn a_static_edge_given_again_elsewhere_is_reported_and_the_first_kept() {
+        let mut tree = TfTree::default();
+        tree.add(&edge(0.1, 0.0), true);
+        tree.add(&edge(0.1 + 1e-4, 0.0), true);
+        assert!(tree.conflicts().is_empty(), "the same edge again, within a tenth of a millimetre");
+        tree.add(&edge(0.3, 0.05), true);
+        assert_eq!(tree.conflicts().len(), 1);
+        assert!(tree.conflicts()[0].contains("base_link -> lidar given twice, 0.200 m and 2.86 degrees apart"));
+        let kept = tree.lookup("base_link", "lidar", false).unwrap();
+        assert!((kept.translation.vector.x - 0.1).abs() < 1e-12, "the first is used");
+        // A dynamic edge does not conflict with a static one.
+        tree.add(&edge(0.5, 0.0), false);
+        assert_eq!(tree.conflicts().len(), 1);
     }
 }

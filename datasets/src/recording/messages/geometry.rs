@@ -67,6 +67,10 @@ pub struct Transform {
     pub parent_from_child: Pose3,
 }
 
+/// How far from 1 a transform quaternion's squared norm may be (tf2's
+/// `QUATERNION_NORMALIZATION_TOLERANCE`).
+const TF_QUATERNION_TOLERANCE: f64 = 0.01;
+
 /// `tf2_msgs/TFMessage`.
 pub fn tf_message(r: &mut dyn WireReader<'_>) -> WireResult<Vec<Transform>> {
     // A TransformStamped takes at least 8 bytes of header, 8 of strings and 56 of doubles.
@@ -75,8 +79,26 @@ pub fn tf_message(r: &mut dyn WireReader<'_>) -> WireResult<Vec<Transform>> {
         .map(|_| {
             let header = r.header()?;
             let child_frame_id = r.string()?;
-            let parent_from_child = r.pose()?;
-            Ok(Transform { header, child_frame_id, parent_from_child })
+            let t = r.vector3()?;
+            let q = r.f64s(4)?;
+            // tf2 ignores a transform whose quaternion is not of unit length
+            // (|q|^2 more than 0.01 from 1): a calibration typo, not a rotation.
+            let norm2: f64 = q.iter().map(|v| v * v).sum();
+            if !((norm2 - 1.0).abs() <= TF_QUATERNION_TOLERANCE) {
+                return Err(wire_error(format!(
+                    "transform {} -> {child_frame_id}: quaternion ({}, {}, {}, {}) is not of unit length \
+                     (squared norm {norm2}; tf2 refuses it too)",
+                    header.frame_id, q[0], q[1], q[2], q[3]
+                )));
+            }
+            if !t.iter().all(|v| v.is_finite()) {
+                return Err(wire_error(format!(
+                    "transform {} -> {child_frame_id}: translation {t:?} is not finite",
+                    header.frame_id
+                )));
+            }
+            let rotation = Rot3::from_quaternion(nalgebra::Quaternion::new(q[3], q[0], q[1], q[2]));
+            Ok(Transform { header, child_frame_id, parent_from_child: Pose3::from_parts(t.into(), rotation) })
         })
         .collect()
 }
@@ -98,4 +120,35 @@ pub fn pose_with_covariance_stamped(r: &mut dyn WireReader<'_>) -> WireResult<St
     let pose = r.pose()?;
     let _ = r.f64s(36)?;
     Ok(StampedPose { header, pose })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::recording::messages::{Encoding, decode};
+    use crate::recording::wire::CdrWriter;
+
+    /// A TF message of one transform base -> lidar with the raw quaternion `q` (x, y, z, w).
+    fn transform(q: [f64; 4]) -> Vec<u8> {
+        let mut w = CdrWriter::new();
+        w.u32(1);
+        w.header(&Header { stamp_ns: 0, frame_id: "base".into() });
+        w.string("lidar");
+        w.f64s(&[0.1, 0.0, 0.5]);
+        w.f64s(&q);
+        w.finish()
+    }
+
+    #[test]
+    fn a_transform_quaternion_off_unit_length_is_refused_as_tf2_refuses_it() {
+        let half = std::f64::consts::FRAC_1_SQRT_2;
+        let ok = decode(Encoding::Cdr, &transform([0.0, 0.0, half, half]), tf_message).unwrap();
+        assert!((ok[0].parent_from_child.rotation.angle() - std::f64::consts::FRAC_PI_2).abs() < 1e-12);
+        // Rounded to four decimals as a hand-typed calibration is: within tf2's tolerance.
+        assert!(decode(Encoding::Cdr, &transform([0.0, 0.0, 0.7071, 0.7071]), tf_message).is_ok());
+        for q in [[0.0, 0.0, 1.0, 1.0], [0.0, 0.0, 0.0, 0.9]] {
+            let error = decode(Encoding::Cdr, &transform(q), tf_message).unwrap_err().to_string();
+            assert!(error.contains("base -> lidar") && error.contains("not of unit length"), "{error}");
+        }
+    }
 }
