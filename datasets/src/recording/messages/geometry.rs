@@ -144,8 +144,8 @@ mod tests {
         let half = std::f64::consts::FRAC_1_SQRT_2;
         let ok = decode(Encoding::Cdr, &transform([0.0, 0.0, half, half]), tf_message).unwrap();
         assert!((ok[0].parent_from_child.rotation.angle() - std::f64::consts::FRAC_PI_2).abs() < 1e-12);
-        // Rounded to four decimals as a hand-typed calibration is: within tf2's tolerance.
-        assert!(decode(Encoding::Cdr, &transform([0.0, 0.0, 0.7071, 0.7071]), tf_message).is_ok());
+        // Rounded by hand (|q|^2 = 0.9941): within tf2's tolerance.
+        assert!(decode(Encoding::Cdr, &transform([0.0, 0.0, 0.70, 0.71]), tf_message).is_ok());
         for q in [[0.0, 0.0, 1.0, 1.0], [0.0, 0.0, 0.0, 0.9]] {
             let error = decode(Encoding::Cdr, &transform(q), tf_message).unwrap_err().to_string();
             assert!(error.contains("base -> lidar") && error.contains("not of unit length"), "{error}");
