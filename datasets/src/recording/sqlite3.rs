@@ -51,6 +51,20 @@ pub fn topics(path: &Path) -> Result<Vec<TopicInfo>> {
             ))
         })
         .map_err(|e| sql_error(path, e))?;
+    // A message that names no topic would be dropped by every join: a damaged bag, said once here.
+    let orphans: i64 = db
+        .query_row(
+            "SELECT COUNT(*) FROM messages WHERE topic_id IS NULL OR topic_id NOT IN (SELECT id FROM topics)",
+            [],
+            |row| row.get(0),
+        )
+        .map_err(|e| sql_error(path, e))?;
+    if orphans > 0 {
+        return Err(DataError::invalid(
+            path,
+            format!("{orphans} messages have a topic_id that is NULL or names no row of `topics`: a damaged bag"),
+        ));
+    }
     let mut out = Vec::new();
     for row in rows {
         let (name, type_name, format, count, first_ns, last_ns) = row.map_err(|e| sql_error(path, e))?;
@@ -85,4 +99,26 @@ pub fn visit(path: &Path, visit: &mut RawVisitor<'_>) -> Result<()> {
         visit(&topic, stamp, bytes)?;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn messages_naming_no_topic_are_an_error_not_dropped() {
+        let source =
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/recordings/rosbag2_sqlite3/rosbag2_sqlite3.db3");
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("bag.db3");
+        std::fs::copy(&source, &path).unwrap();
+        let before: u64 = topics(&path).unwrap().iter().map(|t| t.count).sum();
+        assert!(before > 0);
+        // rosbag2's schema keeps topic_id NOT NULL; an id with no topic row is what damage leaves.
+        let db = Connection::open(&path).unwrap();
+        db.execute("INSERT INTO messages (topic_id, timestamp, data) VALUES (999, 5, x'00')", []).unwrap();
+        drop(db);
+        let error = topics(&path).unwrap_err().to_string();
+        assert!(error.contains("bag.db3") && error.contains("1 messages have a topic_id"), "{error}");
+    }
 }
