@@ -61,7 +61,17 @@ pub fn topics(path: &Path, bytes: &[u8]) -> Result<Vec<TopicInfo>> {
     let mut topics: BTreeMap<String, TopicInfo> = BTreeMap::new();
     let mut add = |topic: &str, type_name: &str, enc: &str, count: u64, first: u64, last: u64| -> Result<()> {
         let entry = match topics.entry(topic.to_string()) {
-            std::collections::btree_map::Entry::Occupied(e) => e.into_mut(),
+            std::collections::btree_map::Entry::Occupied(e) => {
+                // Two channels of one topic with other types: which a role means is unknown.
+                let (known, other) = (&e.get().type_name, canonical_type(type_name));
+                if *known != other {
+                    return Err(DataError::invalid(
+                        path,
+                        format!("topic {topic} carries two message types, {known} and {other}"),
+                    ));
+                }
+                e.into_mut()
+            }
             std::collections::btree_map::Entry::Vacant(v) => v.insert(TopicInfo {
                 name: topic.to_string(),
                 type_name: canonical_type(type_name),
@@ -145,6 +155,30 @@ mod crc_tests {
         writer.finish().unwrap();
         drop(writer);
         out.into_inner()
+    }
+
+    #[test]
+    fn a_topic_with_two_message_types_is_an_error_naming_both() {
+        let mut out = std::io::Cursor::new(Vec::new());
+        let mut writer = mcap::WriteOptions::new().compression(None).create(&mut out).unwrap();
+        let cloud = writer.add_schema("sensor_msgs/msg/PointCloud2", "ros2msg", b"").unwrap();
+        let text = writer.add_schema("std_msgs/msg/String", "ros2msg", b"string data").unwrap();
+        for schema in [cloud, text] {
+            let channel = writer.add_channel(schema, "/points", "cdr", &BTreeMap::new()).unwrap();
+            let header =
+                mcap::records::MessageHeader { channel_id: channel, sequence: 0, log_time: 1, publish_time: 1 };
+            writer.write_to_known_channel(&header, &[0, 1, 0, 0]).unwrap();
+        }
+        writer.finish().unwrap();
+        drop(writer);
+        let error = super::topics(std::path::Path::new("two.mcap"), out.get_ref()).unwrap_err().to_string();
+        assert!(
+            error.contains("two.mcap")
+                && error.contains("/points carries two message types")
+                && error.contains("sensor_msgs/msg/PointCloud2")
+                && error.contains("std_msgs/msg/String"),
+            "{error}"
+        );
     }
 
     #[test]

@@ -250,8 +250,9 @@ impl<'a> Ros1Bag<'a> {
     pub fn topics(&self) -> Result<Vec<TopicInfo>> {
         let (connections, infos) = self.index()?;
         let mut topics: BTreeMap<String, TopicInfo> = BTreeMap::new();
-        let topic_of = |topics: &mut BTreeMap<String, TopicInfo>, c: &Connection| {
-            topics.entry(c.topic.clone()).or_insert_with(|| TopicInfo {
+        let path = self.path;
+        let topic_of = |topics: &mut BTreeMap<String, TopicInfo>, c: &Connection| -> Result<()> {
+            let entry = topics.entry(c.topic.clone()).or_insert_with(|| TopicInfo {
                 name: c.topic.clone(),
                 type_name: canonical_type(&c.type_name),
                 encoding: Encoding::Ros1,
@@ -259,11 +260,18 @@ impl<'a> Ros1Bag<'a> {
                 first_ns: None,
                 last_ns: None,
             });
+            // Two connections of one topic with other types: which a role means is unknown.
+            let other = canonical_type(&c.type_name);
+            if entry.type_name != other {
+                let problem = format!("topic {} carries two message types, {} and {other}", c.topic, entry.type_name);
+                return Err(DataError::invalid(path, problem));
+            }
+            Ok(())
         };
         if connections.is_empty() || infos.is_empty() {
             // No index (a recording that was cut off): count by reading.
             self.visit_with(&mut |c: &Connection, t: i64, _| {
-                topic_of(&mut topics, c);
+                topic_of(&mut topics, c)?;
                 let entry = topics.get_mut(&c.topic).expect("inserted");
                 entry.count += 1;
                 entry.first_ns = Some(entry.first_ns.map_or(t, |f| f.min(t)));
@@ -273,7 +281,7 @@ impl<'a> Ros1Bag<'a> {
             return Ok(topics.into_values().collect());
         }
         for c in connections.values() {
-            topic_of(&mut topics, c);
+            topic_of(&mut topics, c)?;
         }
         // The index records after each chunk hold every message's time per
         // connection: exact spans without unpacking a chunk.
