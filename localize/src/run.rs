@@ -340,6 +340,28 @@ pub fn longest_scan_gap(frames: &[FrameReport]) -> Option<(f64, f64)> {
     (longest.scan_gap_s > 3.0 * typical).then_some((longest.scan_gap_s, longest.stamp))
 }
 
+/// The longest hole in the odometry and in the IMU log, each where it is
+/// more than ten times the log's typical (median) interval and over
+/// `MIN_LOG_GAP_S`: across it the motion is interpolated, not measured.
+/// Returns (log, gap in seconds, the stamp that ended it).
+pub fn log_gaps(sequence: &dyn SensorSequence) -> Vec<(&'static str, f64, f64)> {
+    let odometry: Vec<f64> = sequence.odometry().iter().map(|s| s.timestamp).collect();
+    let imu: Vec<f64> = sequence.imu().iter().map(|s| s.timestamp).collect();
+    [("odometry", odometry), ("IMU", imu)]
+        .into_iter()
+        .filter_map(|(name, stamps)| {
+            let mut gaps: Vec<f64> = stamps.windows(2).map(|w| w[1] - w[0]).collect();
+            let (longest, k) = gaps.iter().enumerate().map(|(k, g)| (*g, k)).max_by(|a, b| a.0.total_cmp(&b.0))?;
+            gaps.sort_by(f64::total_cmp);
+            let typical = gaps[gaps.len() / 2];
+            (longest > 10.0 * typical && longest > MIN_LOG_GAP_S).then_some((name, longest, stamps[k + 1]))
+        })
+        .collect()
+}
+
+/// Shorter holes in a log are not reported (a 50 Hz log's jitter).
+const MIN_LOG_GAP_S: f64 = 0.2;
+
 pub const FRAME_COLUMNS: &str = "timestamp,scan_gap_s,x,y,z,status,detections,planes,corners,matches,correspondences,plane_correspondences,scan_correspondences,\
 level_floor,landmarks,detect_ms,normals_ms,planes_ms,corners_ms,fusion_ms,scan_ms,pose_ms,total_ms";
 

@@ -333,3 +333,24 @@ fn labels_give_no_corners_for_an_unreadable_image_or_one_they_do_not_list() {
     );
     assert!(matches!(&result.frames[2].status, FrameStatus::NoImage { why, .. } if why.contains("not in the labels")));
 }
+
+#[test]
+fn a_hole_in_the_odometry_log_is_reported_with_its_length_and_end() {
+    let dir = tempfile::tempdir().unwrap();
+    write_sequence(dir.path());
+    let sequence = RecordedSequence::open(dir.path()).unwrap();
+    assert!(localize::run::log_gaps(&sequence).is_empty(), "10 Hz odometry and 50 Hz IMU without holes");
+    // The odometry stops between 0.5 s and 2.0 s.
+    let odometry: Vec<OdometrySample> = (0..30)
+        .map(|k| k as f64 * 0.1)
+        .filter(|t| !(0.55..1.95).contains(t))
+        .map(|timestamp| OdometrySample { timestamp, x: 0.0, y: 0.0, yaw: 0.0, v: 0.0, omega: 0.0 })
+        .collect();
+    write_odometry(&dir.path().join("odom.csv"), &odometry).unwrap();
+    let sequence = RecordedSequence::open(dir.path()).unwrap();
+    let gaps = localize::run::log_gaps(&sequence);
+    assert_eq!(gaps.len(), 1, "{gaps:?}");
+    let (log, gap, end) = gaps[0];
+    assert_eq!(log, "odometry");
+    assert!((gap - 1.5).abs() < 1e-9 && (end - 2.0).abs() < 1e-9, "{gap} s before {end} s");
+}

@@ -595,6 +595,11 @@ fn run(args: &RunArgs) -> Result<()> {
     if let Some((gap, stamp)) = localize::run::longest_scan_gap(&result.frames) {
         eprintln!("warning: no scan for {gap:.2} s before the scan at {stamp:.3} (odometry/IMU carried the pose)");
     }
+    for (log, gap, stamp) in localize::run::log_gaps(&*sequence) {
+        eprintln!(
+            "warning: the {log} log has no sample for {gap:.2} s before {stamp:.3} s (the motion across it is interpolated)"
+        );
+    }
     if let Some(m) = metrics {
         println!(
             "{} frames, {} corrected ({} with the camera's corners), {:.1} ms per frame",
