@@ -98,6 +98,13 @@ fn bad_flags_and_unusable_folders_get_messages_that_name_them() {
             "{message}"
         );
     }
+    // Another command's folder is not written into.
+    let other = dir.path().join("localize-run");
+    std::fs::create_dir(&other).unwrap();
+    std::fs::write(other.join("metrics.json"), "{\"theirs\": 1}").unwrap();
+    let message = train(&[&base[..], &["--out", other.to_str().unwrap()]].concat());
+    assert!(message.contains("localize-run") && message.contains("not empty (it holds metrics.json"), "{message}");
+    assert_eq!(std::fs::read_to_string(other.join("metrics.json")).unwrap(), "{\"theirs\": 1}");
     // A count that would never end is refused before any work.
     let out = dir.path().join("run");
     let message = train(&[&base[..], &["--out", out.to_str().unwrap(), "--epochs", "1000000000"]].concat());

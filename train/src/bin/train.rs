@@ -112,6 +112,20 @@ fn run_main() -> Result<()> {
                     out.display()
                 );
             }
+            // Another command's folder (a localization run, a dataset) would lose its files to ours.
+            if let Ok(entries) = std::fs::read_dir(out) {
+                let mut names: Vec<String> =
+                    entries.filter_map(|e| e.ok()).map(|e| e.file_name().to_string_lossy().into_owned()).collect();
+                if !names.is_empty() {
+                    names.sort();
+                    names.truncate(3);
+                    bail!(
+                        "--out {}: not empty (it holds {}, ...): give a new or empty folder",
+                        out.display(),
+                        names.join(", ")
+                    );
+                }
+            }
             let mut c = TrainConfig::new(backbone, args.width, data.clone());
             if let Some(e) = args.epochs {
                 c.epochs = e;
