@@ -62,7 +62,9 @@ pub fn write_dir<E: From<DataError>>(
     };
     std::fs::create_dir_all(parent).map_err(|e| DataError::io(parent, e))?;
     recover_dir(dir)?;
-    let tmp = tempfile::Builder::new().prefix(".tmp-dir-").tempdir_in(parent).map_err(|e| DataError::io(parent, e))?;
+    remove_stale_siblings(dir, "")?;
+    let prefix = sibling_prefix(dir);
+    let tmp = tempfile::Builder::new().prefix(&prefix).tempdir_in(parent).map_err(|e| DataError::io(parent, e))?;
     fill(tmp.path())?;
     let name = dir.file_name().and_then(|n| n.to_str()).unwrap_or("dir");
     let old = parent.join(format!(".old-{name}"));
@@ -73,6 +75,39 @@ pub fn write_dir<E: From<DataError>>(
     std::fs::rename(tmp.keep(), dir).map_err(|e| DataError::io(dir, e))?;
     let _ = std::fs::remove_dir_all(&old);
     Ok(())
+}
+
+/// The name start of a temporary sibling of `target` (`.tmp-NAME.~`, then
+/// tempfile's six random characters): a later write of the same target
+/// finds what a killed one left, and nobody else's.
+pub fn sibling_prefix(target: &Path) -> String {
+    let name = target.file_name().map_or_else(|| "out".into(), |n| n.to_string_lossy());
+    format!(".tmp-{name}.~")
+}
+
+/// Removes the temporary siblings of `target` (named by `sibling_prefix`,
+/// six random characters, then `suffix`) that a killed write left; how many.
+pub fn remove_stale_siblings(target: &Path, suffix: &str) -> Result<usize> {
+    let parent = match target.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    let prefix = sibling_prefix(target);
+    let Ok(entries) = std::fs::read_dir(parent) else { return Ok(0) };
+    let mut removed = 0;
+    for entry in entries {
+        let entry = entry.map_err(|e| DataError::io(parent, e))?;
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let random = name.strip_prefix(&prefix).and_then(|rest| rest.strip_suffix(suffix));
+        if !random.is_some_and(|r| r.len() == 6 && r.chars().all(|c| c.is_ascii_alphanumeric())) {
+            continue;
+        }
+        let path = entry.path();
+        let gone = if path.is_dir() { std::fs::remove_dir_all(&path) } else { std::fs::remove_file(&path) };
+        gone.map_err(|e| DataError::io(&path, e))?;
+        removed += 1;
+    }
+    Ok(removed)
 }
 
 /// Puts back a folder that a kill between `write_dir`'s two renames left

@@ -35,3 +35,29 @@ fn a_folder_renamed_aside_by_a_kill_comes_back_and_leftovers_go() {
     names.sort();
     assert_eq!(names, ["keep.tmp", "resume"]);
 }
+
+#[test]
+fn a_killed_write_leaves_a_sibling_that_the_next_write_of_the_same_target_removes() {
+    let root = tempfile::tempdir().unwrap();
+    let dir = root.path().join("run");
+    // What kills of earlier writes left: one of `run`, one of `run-2`, one of a bag.
+    for name in [".tmp-run.~Ab12Cd", ".tmp-run-2.~Ab12Cd", ".tmp-bag.mcap.~Zz9Yy8.mcap"] {
+        std::fs::create_dir(root.path().join(name)).unwrap();
+    }
+    write_dir::<datasets::DataError>(&dir, |tmp| {
+        assert!(tmp.file_name().unwrap().to_string_lossy().starts_with(".tmp-run.~"));
+        std::fs::write(tmp.join("trajectory.txt"), "1").unwrap();
+        Ok(())
+    })
+    .unwrap();
+    let names = |root: &std::path::Path| {
+        let mut names: Vec<_> =
+            std::fs::read_dir(root).unwrap().map(|e| e.unwrap().file_name().into_string().unwrap()).collect();
+        names.sort();
+        names
+    };
+    assert_eq!(names(root.path()), [".tmp-bag.mcap.~Zz9Yy8.mcap", ".tmp-run-2.~Ab12Cd", "run"]);
+    let bag = root.path().join("bag.mcap");
+    assert_eq!(datasets::atomic::remove_stale_siblings(&bag, ".mcap").unwrap(), 1);
+    assert_eq!(names(root.path()), [".tmp-run-2.~Ab12Cd", "run"]);
+}

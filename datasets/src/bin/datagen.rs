@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use clap::Parser;
-use datasets::generate::{DatagenConfig, generate};
+use datasets::generate::{DatagenConfig, generate_then};
 
 /// Generate labeled images and a full sensor sequence from the synthetic
 /// three-level indoor area. Settings come from the defaults, then `--config`,
@@ -115,7 +115,13 @@ fn run_main() -> Result<()> {
         bail!("--out {}: exists and is not a folder", args.out.display());
     }
     let started = Instant::now();
-    let summary = generate(&args.out, &config)?;
+    let mut messages = 0;
+    let summary = generate_then(&args.out, &config, |out| {
+        if let Some(bag) = &args.bag {
+            messages = datasets::recording::mcap_export::write_sequence_mcap(&out.join("sequence"), bag)?;
+        }
+        Ok(())
+    })?;
     eprintln!(
         "wrote {} detection images ({} corner labels) and {} sequence frames over a {:.1} m route to {} in {:.1} s",
         summary.detection_images,
@@ -126,7 +132,6 @@ fn run_main() -> Result<()> {
         started.elapsed().as_secs_f64()
     );
     if let Some(bag) = &args.bag {
-        let messages = datasets::recording::mcap_export::write_sequence_mcap(&args.out.join("sequence"), bag)?;
         eprintln!("wrote {messages} messages to {}", bag.display());
     }
     if summary.frames_after_route_end > 0 {

@@ -67,6 +67,13 @@ pub(crate) fn progress(len: usize, what: &str) -> ProgressBar {
 /// Generates the detection data set into `out/detection` and the sequence
 /// into `out/sequence`, and previews into `out/preview`.
 pub fn generate(out: &Path, config: &DatagenConfig) -> Result<Summary> {
+    generate_then(out, config, |_| Ok(()))
+}
+
+/// `generate`, with `more` run on the finished folder before `datagen.json`
+/// is written (what else the run makes from it, such as a recording of the
+/// sequence): a kill in `more` leaves the run looking unfinished.
+pub fn generate_then(out: &Path, config: &DatagenConfig, more: impl FnOnce(&Path) -> Result<()>) -> Result<Summary> {
     config.validate().map_err(|e| DataError::setting(out, e))?;
     let world = World::new(&config.world, key(config.seed, stream::APPEARANCE, 0));
     let rig = Rig::default();
@@ -90,6 +97,7 @@ pub fn generate(out: &Path, config: &DatagenConfig) -> Result<Summary> {
     let (detection_images, detection_labels) = write_detection_set(&out.join("detection"), &world, &rig, config)?;
     let sequence = write_sequence(&out.join("sequence"), &world, &rig, config)?;
     write_previews(&out.join("preview"), &world, &rig, &sequence)?;
+    more(out)?;
     atomic::write_json(&out.join("datagen.json"), config)?;
     Ok(Summary {
         detection_images,

@@ -280,8 +280,11 @@ pub fn write_sequence_mcap(dir: &Path, out: &Path) -> Result<usize> {
     // Written beside the target under a temporary name, renamed when whole.
     let parent = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     std::fs::create_dir_all(parent).map_err(|e| DataError::io(parent, e))?;
+    // What a killed export of this bag left goes first.
+    crate::atomic::remove_stale_siblings(out, ".mcap")?;
+    let prefix = crate::atomic::sibling_prefix(out);
     let mut builder = tempfile::Builder::new();
-    builder.prefix(".tmp-").suffix(".mcap");
+    builder.prefix(&prefix).suffix(".mcap");
     // Temporary files are private (0600); the recording is an ordinary file.
     #[cfg(unix)]
     builder.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o644));
