@@ -132,6 +132,12 @@ pub fn write_map(dir: &Path, map: &SavedMap) -> datasets::Result<()> {
 /// Reads the map `localize run` wrote into `dir` (`map.json` and
 /// `map.ply`); any other file, a torn one, or one whose numbers are not
 /// finite is an error naming it.
+/// The most keyframes a map may hold (a route of several kilometres).
+pub const MAX_KEYFRAMES: usize = 5000;
+/// Farthest a map's poses, corners and walls may lie from its origin: a
+/// building's map is not a continent's.
+pub const MAX_COORDINATE_M: f64 = 1e6;
+
 pub fn read_map(dir: &Path) -> datasets::Result<SavedMap> {
     let json_path = dir.join("map.json");
     let text = datasets::atomic::read_text(&json_path)?;
@@ -140,25 +146,50 @@ pub fn read_map(dir: &Path) -> datasets::Result<SavedMap> {
     if file.format != FORMAT && file.format != FORMAT_1 {
         return Err(DataError::invalid(&json_path, format!("format `{}`, expected `{FORMAT}`", file.format)));
     }
+    // Each keyframe is a start the placement tries: beyond this the search takes minutes.
+    if file.keyframes.len() > MAX_KEYFRAMES {
+        return Err(DataError::invalid(
+            &json_path,
+            format!("{} keyframes, more than the {MAX_KEYFRAMES} a map may hold", file.keyframes.len()),
+        ));
+    }
+    let within = |v: &Vec3| v.iter().all(|x| x.is_finite() && x.abs() <= MAX_COORDINATE_M);
     let mut keyframes = Vec::with_capacity(file.keyframes.len());
     for (k, a) in file.keyframes.iter().enumerate() {
-        let pose = pose_from_array(a).ok_or_else(|| {
-            DataError::invalid(&json_path, format!("keyframe {k} is not a finite pose with a unit quaternion"))
+        let pose = pose_from_array(a).filter(|p| within(&p.translation.vector)).ok_or_else(|| {
+            DataError::invalid(
+                &json_path,
+                format!("keyframe {k} is not a pose with a unit quaternion within {MAX_COORDINATE_M} m"),
+            )
         })?;
         keyframes.push(pose);
     }
     let truth_origin = match &file.truth_origin {
-        Some(a) => Some(pose_from_array(a).ok_or_else(|| {
-            DataError::invalid(&json_path, "truth_origin is not a finite pose with a unit quaternion")
+        Some(a) => Some(pose_from_array(a).filter(|p| within(&p.translation.vector)).ok_or_else(|| {
+            DataError::invalid(
+                &json_path,
+                format!("truth_origin is not a pose with a unit quaternion within {MAX_COORDINATE_M} m"),
+            )
         })?),
         None => None,
     };
-    let finite = |v: &Vec3| v.iter().all(|x| x.is_finite());
-    if let Some(k) = file.corners.iter().position(|c| !finite(&c.position)) {
-        return Err(DataError::invalid(&json_path, format!("corner {k} has a non-finite position")));
+    if let Some(k) = file.corners.iter().position(|c| !within(&c.position)) {
+        return Err(DataError::invalid(
+            &json_path,
+            format!("corner {k} is not a position within {MAX_COORDINATE_M} m"),
+        ));
     }
     if let Some(k) = file.walls.iter().position(|w| !w.is_valid()) {
         return Err(DataError::invalid(&json_path, format!("wall {k} has a non-finite plane or no weight")));
+    }
+    let unit = |w: &crate::plane_landmarks::PlaneLandmark| {
+        (w.normal.norm() - 1.0).abs() <= 1e-3 && w.distance.abs() <= MAX_COORDINATE_M
+    };
+    if let Some(k) = file.walls.iter().position(|w| !unit(w)) {
+        return Err(DataError::invalid(
+            &json_path,
+            format!("wall {k} has no unit normal, or lies farther than {MAX_COORDINATE_M} m"),
+        ));
     }
     if file.wall_axis_deg.is_some_and(|a| !a.is_finite()) {
         return Err(DataError::invalid(&json_path, "wall_axis_deg is not a finite angle"));
@@ -183,8 +214,8 @@ pub fn read_map(dir: &Path) -> datasets::Result<SavedMap> {
     for (k, vertex) in body.chunks_exact(VERTEX_BYTES).take(file.points).enumerate() {
         let f = |i: usize| f32::from_le_bytes(vertex[4 * i..4 * i + 4].try_into().expect("4 bytes")) as f64;
         let (position, normal) = (Vec3::new(f(0), f(1), f(2)), Vec3::new(f(3), f(4), f(5)));
-        if !finite(&position) || !finite(&normal) || (normal.norm() - 1.0).abs() > 1e-3 {
-            return Err(DataError::invalid(&ply_path, format!("vertex {k} is not a point with a unit normal")));
+        if !within(&position) || !normal.iter().all(|x| x.is_finite()) || (normal.norm() - 1.0).abs() > 1e-3 {
+            return Err(DataError::invalid(&ply_path, format!("vertex {k} is not a point within {MAX_COORDINATE_M} m with a unit normal")));
         }
         points.push(MapPoint { position, normal });
     }
@@ -248,6 +279,24 @@ mod tests {
         std::fs::write(&json, old.to_string()).unwrap();
         let weightless = read_map(dir.path()).unwrap_err().to_string();
         assert!(weightless.contains("wall 0") && weightless.contains("no weight"), "{weightless}");
+        // A wall without a direction, an origin a light year away, too many keyframes: named.
+        let mut zero = wall(1.0);
+        zero[0]["normal"] = serde_json::json!([0.0, 0.0, 0.0]);
+        old["walls"] = zero;
+        std::fs::write(&json, old.to_string()).unwrap();
+        let m = read_map(dir.path()).unwrap_err().to_string();
+        assert!(m.contains("wall 0 has no unit normal"), "{m}");
+        old["walls"] = wall(1.0);
+        old["truth_origin"] = serde_json::json!([9.5e15, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]);
+        std::fs::write(&json, old.to_string()).unwrap();
+        let m = read_map(dir.path()).unwrap_err().to_string();
+        assert!(m.contains("truth_origin") && m.contains("within 1000000 m"), "{m}");
+        old.as_object_mut().unwrap().remove("truth_origin");
+        old["keyframes"] = serde_json::json!(vec![[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]; MAX_KEYFRAMES + 1]);
+        std::fs::write(&json, old.to_string()).unwrap();
+        let m = read_map(dir.path()).unwrap_err().to_string();
+        assert!(m.contains("5001 keyframes, more than the 5000"), "{m}");
+        old["keyframes"] = serde_json::json!([]);
         write_map(dir.path(), &map).unwrap();
         let ply = dir.path().join("map.ply");
         let bytes = std::fs::read(&ply).unwrap();
