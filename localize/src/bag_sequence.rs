@@ -258,6 +258,8 @@ struct FirstPass {
     odometry: Vec<geometry::OdometryMessage>,
     truth: Trajectory,
     dropped_duplicates: usize,
+    /// Of those, the 3D sensor's.
+    dropped_scans: usize,
 }
 
 /// Rejects a stamp older than the previous one on the same topic, and
@@ -283,6 +285,21 @@ impl BagSequence {
         let pass = Self::first_pass(&recording, &roles)?;
         if pass.scans.is_empty() {
             return Err(bag_error(&recording, format!("topic {} has no messages", recording.topics[roles.lidar].name)));
+        }
+        // Scans that mostly repeat a stamp (all 0: a driver that never set them) leave a trajectory of
+        // a few poses whose errors mean nothing.
+        if pass.dropped_scans >= pass.scans.len() {
+            return Err(bag_error(
+                &recording,
+                format!(
+                    "{} of the {} messages of {} repeat the stamp before them (the first stamp: {:.6} s): \
+                     the scans' header stamps are not set",
+                    pass.dropped_scans,
+                    pass.dropped_scans + pass.scans.len(),
+                    recording.topics[roles.lidar].name,
+                    pass.scans[0].stamp
+                ),
+            ));
         }
         if pass.dropped_duplicates > 0 {
             notes
@@ -387,6 +404,7 @@ impl BagSequence {
                     pass.scans.push(Stamped { stamp: h.stamp_s(), index: m.index });
                 } else {
                     pass.dropped_duplicates += 1;
+                    pass.dropped_scans += 1;
                 }
                 pass.lidar_frame.get_or_insert(h.frame_id);
             } else if Some(m.topic) == roles.image {

@@ -215,7 +215,10 @@ pub fn read_map(dir: &Path) -> datasets::Result<SavedMap> {
         let f = |i: usize| f32::from_le_bytes(vertex[4 * i..4 * i + 4].try_into().expect("4 bytes")) as f64;
         let (position, normal) = (Vec3::new(f(0), f(1), f(2)), Vec3::new(f(3), f(4), f(5)));
         if !within(&position) || !normal.iter().all(|x| x.is_finite()) || (normal.norm() - 1.0).abs() > 1e-3 {
-            return Err(DataError::invalid(&ply_path, format!("vertex {k} is not a point within {MAX_COORDINATE_M} m with a unit normal")));
+            return Err(DataError::invalid(
+                &ply_path,
+                format!("vertex {k} is not a point within {MAX_COORDINATE_M} m with a unit normal"),
+            ));
         }
         points.push(MapPoint { position, normal });
     }

@@ -41,3 +41,26 @@ fn two_candidate_topics_are_an_error_listing_both_until_one_is_named() {
     assert_eq!((roles.imu, roles.odometry), (None, None));
     assert!(notes.iter().any(|n| n.starts_with("imu") && n.ends_with("none")), "{notes:?}");
 }
+
+#[test]
+fn scans_whose_stamps_are_never_set_are_an_error_not_a_one_pose_trajectory() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("zero.mcap");
+    let file = std::io::BufWriter::new(std::fs::File::create(&path).unwrap());
+    let mut writer = mcap::WriteOptions::new().profile("ros2").create(file).unwrap();
+    let schema = writer.add_schema("sensor_msgs/msg/PointCloud2", "ros2msg", b"").unwrap();
+    let channel = writer.add_channel(schema, "/points", "cdr", &BTreeMap::new()).unwrap();
+    let cloud = PointCloud::new(vec![nalgebra::Point3::new(1.0, 2.0, 3.0)], None);
+    // Logged 0.1 s apart, every header stamp 0.
+    for k in 0..20u32 {
+        let t = 1_000_000_000 + u64::from(k) * 100_000_000;
+        let header = mcap::records::MessageHeader { channel_id: channel, sequence: k, log_time: t, publish_time: t };
+        writer.write_to_known_channel(&header, &point_cloud2(0, "lidar", &cloud)).unwrap();
+    }
+    writer.finish().unwrap();
+    drop(writer);
+    let options = BagOptions::default();
+    let error =
+        localize::bag_sequence::BagSequence::open(&path, &options, &Default::default()).err().unwrap().to_string();
+    assert!(error.contains("zero.mcap") && error.contains("19 of the 20 messages of /points repeat"), "{error}");
+}
