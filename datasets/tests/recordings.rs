@@ -304,8 +304,16 @@ fn truncated_recordings_are_errors_naming_the_file() {
             std::fs::write(&path, &bytes[..keep]).unwrap();
             let error = read_everything(&path).expect_err(&format!("{name} cut to {keep} bytes"));
             assert!(error.contains(name), "{name} cut to {keep}: {error}");
+            // An MCAP cut short says so (not the crate's "Bad magic number").
+            if name.ends_with(".mcap") {
+                assert!(error.contains("truncated") && !error.contains("Bad magic"), "{name} cut to {keep}: {error}");
+            }
         }
     }
+    let other = dir.path().join("notes.mcap");
+    std::fs::write(&other, b"just some text, not a recording at all").unwrap();
+    let error = read_everything(&other).unwrap_err();
+    assert!(error.contains("notes.mcap") && error.contains("not a recording"), "{error}");
 }
 
 #[test]

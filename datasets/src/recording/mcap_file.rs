@@ -9,7 +9,27 @@ use crate::recording::messages::{Encoding, canonical_type};
 use crate::recording::{RawVisitor, TopicInfo};
 
 fn mcap_error(path: &Path, e: mcap::McapError) -> DataError {
-    DataError::invalid(path, format!("not a readable MCAP file: {e}"))
+    // The crate's words for the two ways a copy is cut short say neither.
+    let why = match e {
+        mcap::McapError::BadMagic if has_start_magic(path) => {
+            "truncated: the MCAP magic that ends a complete file is missing (a copy cut short, or a recorder \
+             killed before it closed the file)"
+                .to_string()
+        }
+        mcap::McapError::BadMagic => "not an MCAP file: it does not start with the MCAP magic".to_string(),
+        mcap::McapError::UnexpectedEof | mcap::McapError::UnexpectedEoc => {
+            format!("truncated: the file ends in the middle of a record ({e})")
+        }
+        e => format!("not a readable MCAP file: {e}"),
+    };
+    DataError::invalid(path, why)
+}
+
+/// Whether the file at `path` starts as an MCAP file does.
+fn has_start_magic(path: &Path) -> bool {
+    use std::io::Read;
+    let mut start = [0u8; 8];
+    std::fs::File::open(path).and_then(|mut f| f.read_exact(&mut start)).is_ok() && start == *mcap::MAGIC
 }
 
 fn encoding(path: &Path, topic: &str, name: &str) -> Result<Encoding> {
