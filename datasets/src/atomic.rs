@@ -77,6 +77,23 @@ pub fn write_dir<E: From<DataError>>(
     Ok(())
 }
 
+/// Whether `target` can be written (a file or a folder written whole, by a
+/// temporary sibling renamed into place): its folder is made and a
+/// temporary file tried in it, so that an unwritable output fails before
+/// the work, not after it.
+pub fn check_writable(target: &Path) -> Result<()> {
+    let parent = match target.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    std::fs::create_dir_all(parent).map_err(|e| DataError::io(parent, e))?;
+    tempfile::Builder::new()
+        .prefix(&sibling_prefix(target))
+        .tempfile_in(parent)
+        .map_err(|e| DataError::io(parent, e))?;
+    Ok(())
+}
+
 /// The name start of a temporary sibling of `target` (`.tmp-NAME.~`, then
 /// tempfile's six random characters): a later write of the same target
 /// finds what a killed one left, and nobody else's.

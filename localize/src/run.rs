@@ -460,6 +460,7 @@ pub fn check_output_folder(out: &Path) -> Result<()> {
     if out.exists() && !out.is_dir() {
         return Err(datasets::DataError::invalid(out, "the output is not a folder").into());
     }
+    datasets::atomic::check_writable(out)?;
     let Ok(entries) = std::fs::read_dir(out) else { return Ok(()) };
     for entry in entries {
         let entry = entry.map_err(|e| datasets::DataError::io(out, e))?;

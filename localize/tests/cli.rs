@@ -58,6 +58,13 @@ fn bad_input_gives_a_message_naming_the_file() {
     let missing = dir.path().join("missing.txt");
     let out = localize(&["eval", "--gt", missing.to_str().unwrap(), "--est", missing.to_str().unwrap()]);
     assert!(String::from_utf8_lossy(&out.stderr).contains("missing.txt"));
+    // An output that cannot be written is refused before the recording is read.
+    let blocker = dir.path().join("a-file");
+    std::fs::write(&blocker, "x").unwrap();
+    let unwritable = blocker.join("runs").join("r1");
+    let out = localize(&["run", "--sequence", "no-such-folder", "--out", unwritable.to_str().unwrap()]);
+    let m = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && m.contains("a-file") && !m.contains("no-such-folder"), "{m}");
     // A start in a map needs the map, and four numbers.
     let out = localize(&["run", "--sequence", "s", "--out", "o", "--start-pose", "1,2,0,90"]);
     assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("--map"));
