@@ -3,7 +3,9 @@
 //! Huber-weighted, re-associating each step), as KISS-ICP and GenZ-ICP
 //! register. The result is a pose measurement with its information matrix,
 //! which the pose solver weighs beside the corners and walls: a corridor
-//! that pins only two directions gives no information along the third.
+//! that pins only two directions gives no information along the third. Edge
+//! points (`image_edges`), where a frame has them, register point-to-line
+//! against the edge map beside the planes.
 
 use datasets::InvalidSetting;
 use datasets::math::{Pose3, Vec3};
@@ -209,7 +211,8 @@ pub struct ScanFix {
     pub pose: Vector6<f64>,
     pub information: Matrix6<f64>,
     pub correspondences: usize,
-    /// Root mean square of the inliers' point-to-plane distances.
+    /// Root mean square of the inliers' residuals (point-to-plane, and
+    /// point-to-line for edge points).
     pub rms_m: f64,
     /// Residuals within the Huber threshold: what tells two starts' results apart.
     pub inliers: usize,
