@@ -21,7 +21,7 @@ use datasets::undistort::Undistorter;
 use crate::error::{LocalizeError, Result};
 use crate::rgbd_sequence::{DepthOptions, optical_from_body};
 use crate::sensor_set::RangeSensor;
-use crate::sequence::{FrameImage, FrameInput, SensorSequence, SyncConfig, nearest_within};
+use crate::sequence::{FrameImage, FrameInput, MotionLog, SensorSequence, SyncConfig, nearest_within};
 
 /// Which topics and frames to use; `None` finds the topic by its type.
 #[derive(Debug, Clone, Default)]
@@ -590,6 +590,16 @@ impl SensorSequence for BagSequence {
     }
     fn range_sensor(&self) -> RangeSensor {
         self.roles.range
+    }
+    fn log_source(&self, log: MotionLog) -> String {
+        let topic = match log {
+            MotionLog::Odometry => self.roles.odometry,
+            MotionLog::Imu => self.roles.imu,
+        };
+        match topic {
+            Some(t) => format!("{}: topic {}", self.recording.path.display(), self.recording.topics[t].name),
+            None => log.to_string(),
+        }
     }
 
     /// One pass over the LIDAR and camera topics in file order: a scan waits

@@ -231,9 +231,12 @@ impl DetectorClock {
 const MAX_OUTSIDE_LOGS_S: f64 = 1.0;
 
 fn check_logs_cover(stamps: &[f64], sequence: &dyn SensorSequence) -> Result<()> {
+    use crate::sequence::MotionLog;
+    let odometry = sequence.odometry();
+    let imu = sequence.imu();
     let spans = [
-        ("odometry", sequence.odometry().first().map(|s| s.timestamp), sequence.odometry().last().map(|s| s.timestamp)),
-        ("IMU", sequence.imu().first().map(|s| s.timestamp), sequence.imu().last().map(|s| s.timestamp)),
+        (MotionLog::Odometry, odometry.first().map(|s| s.timestamp), odometry.last().map(|s| s.timestamp)),
+        (MotionLog::Imu, imu.first().map(|s| s.timestamp), imu.last().map(|s| s.timestamp)),
     ];
     // A log the recording does not have is not checked: its role carries on
     // from the previous motion (`SensorReplay`).
@@ -246,8 +249,9 @@ fn check_logs_cover(stamps: &[f64], sequence: &dyn SensorSequence) -> Result<()>
             .collect();
         if let Some(t) = outside.first() {
             return Err(crate::error::LocalizeError::Recording(format!(
-                "{} scans lie more than {MAX_OUTSIDE_LOGS_S} s outside the {name} log ({first:.6} to {last:.6} s), the first at {t:.6} s",
-                outside.len()
+                "{} scans lie more than {MAX_OUTSIDE_LOGS_S} s outside {name} ({}: {first:.6} to {last:.6} s), the first at {t:.6} s",
+                outside.len(),
+                sequence.log_source(name)
             )));
         }
     }
@@ -344,10 +348,11 @@ pub fn longest_scan_gap(frames: &[FrameReport]) -> Option<(f64, f64)> {
 /// more than ten times the log's typical (median) interval and over
 /// `MIN_LOG_GAP_S`: across it the motion is interpolated, not measured.
 /// Returns (log, gap in seconds, the stamp that ended it).
-pub fn log_gaps(sequence: &dyn SensorSequence) -> Vec<(&'static str, f64, f64)> {
+pub fn log_gaps(sequence: &dyn SensorSequence) -> Vec<(crate::sequence::MotionLog, f64, f64)> {
+    use crate::sequence::MotionLog;
     let odometry: Vec<f64> = sequence.odometry().iter().map(|s| s.timestamp).collect();
     let imu: Vec<f64> = sequence.imu().iter().map(|s| s.timestamp).collect();
-    [("odometry", odometry), ("IMU", imu)]
+    [(MotionLog::Odometry, odometry), (MotionLog::Imu, imu)]
         .into_iter()
         .filter_map(|(name, stamps)| {
             let mut gaps: Vec<f64> = stamps.windows(2).map(|w| w[1] - w[0]).collect();

@@ -74,6 +74,9 @@ impl SensorSequence for WithChanges {
     fn range_sensor(&self) -> RangeSensor {
         self.inner.range_sensor()
     }
+    fn log_source(&self, log: crate::sequence::MotionLog) -> String {
+        self.inner.log_source(log)
+    }
     fn ground_truth(&self) -> Option<&Trajectory> {
         self.truth.as_ref().or_else(|| self.inner.ground_truth())
     }

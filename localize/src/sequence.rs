@@ -99,6 +99,22 @@ impl FrameImage {
     }
 }
 
+/// The recorded motion logs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MotionLog {
+    Odometry,
+    Imu,
+}
+
+impl std::fmt::Display for MotionLog {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            MotionLog::Odometry => "the odometry log",
+            MotionLog::Imu => "the IMU log",
+        })
+    }
+}
+
 /// One frame as the pipeline gets it.
 pub struct FrameInput {
     /// The scan's time: the frame's time in the trajectory.
@@ -127,6 +143,11 @@ pub trait SensorSequence {
     /// What gives the 3D points: a LIDAR unless the recording says otherwise.
     fn range_sensor(&self) -> RangeSensor {
         RangeSensor::Lidar
+    }
+    /// Where the motion log `log` ([`MotionLog`]) comes from, for messages:
+    /// its file or its topic.
+    fn log_source(&self, log: MotionLog) -> String {
+        log.to_string()
     }
     /// Hands each frame, in time order, to `visit`.
     fn for_each_frame(&self, visit: &mut dyn FnMut(FrameInput) -> Result<()>) -> Result<()>;
@@ -240,6 +261,13 @@ impl RecordedSequence {
 impl SensorSequence for RecordedSequence {
     fn calibration(&self) -> &Calibration {
         &self.calibration
+    }
+    fn log_source(&self, log: MotionLog) -> String {
+        let file = match log {
+            MotionLog::Odometry => "odom.csv",
+            MotionLog::Imu => "imu.csv",
+        };
+        self.dir.join(file).display().to_string()
     }
     fn odometry(&self) -> &[OdometrySample] {
         &self.odometry

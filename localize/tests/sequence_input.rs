@@ -189,7 +189,8 @@ fn empty_logs_every_cloud_broken_and_scans_past_the_logs_are_errors() {
     datasets::formats::write_pcd(&dir.path().join("cloud/57.0.pcd"), &box_room(), PcdData::Binary).unwrap();
     let sequence = RecordedSequence::open(dir.path()).unwrap();
     let e = run_sequence(&sequence, &mut labels(dir.path()), &LocalizeConfig::default(), false).err().unwrap();
-    assert!(e.to_string().contains("1 scans lie more than 1 s outside the odometry log"), "{e}");
+    assert!(e.to_string().contains("1 scans lie more than 1 s outside the odometry log ("), "{e}");
+    assert!(e.to_string().contains("odom.csv: "), "the file is named: {e}");
 
     for noise in [f64::NAN, -1.0] {
         let e = CornerSource::labels(&dir.path().join("labels.json"), noise, 1).err().unwrap().to_string();
@@ -336,6 +337,7 @@ fn labels_give_no_corners_for_an_unreadable_image_or_one_they_do_not_list() {
 
 #[test]
 fn a_hole_in_the_odometry_log_is_reported_with_its_length_and_end() {
+    use localize::sequence::SensorSequence;
     let dir = tempfile::tempdir().unwrap();
     write_sequence(dir.path());
     let sequence = RecordedSequence::open(dir.path()).unwrap();
@@ -351,6 +353,7 @@ fn a_hole_in_the_odometry_log_is_reported_with_its_length_and_end() {
     let gaps = localize::run::log_gaps(&sequence);
     assert_eq!(gaps.len(), 1, "{gaps:?}");
     let (log, gap, end) = gaps[0];
-    assert_eq!(log, "odometry");
+    assert_eq!(log, localize::sequence::MotionLog::Odometry);
+    assert!(sequence.log_source(log).ends_with("odom.csv"), "{}", sequence.log_source(log));
     assert!((gap - 1.5).abs() < 1e-9 && (end - 2.0).abs() < 1e-9, "{gap} s before {end} s");
 }

@@ -596,8 +596,9 @@ fn run(args: &RunArgs) -> Result<()> {
         eprintln!("warning: no scan for {gap:.2} s before the scan at {stamp:.3} (odometry/IMU carried the pose)");
     }
     for (log, gap, stamp) in localize::run::log_gaps(&*sequence) {
+        let source = sequence.log_source(log);
         eprintln!(
-            "warning: the {log} log has no sample for {gap:.2} s before {stamp:.3} s (the motion across it is interpolated)"
+            "warning: {log} ({source}) has no sample for {gap:.2} s before {stamp:.3} s (the motion across it is interpolated)"
         );
     }
     if let Some(m) = metrics {
