@@ -172,6 +172,23 @@ pub fn read_bytes(path: &Path) -> Result<Vec<u8>> {
 
 /// Fails unless `path` is a regular file (after symbolic links), before
 /// anything opens it (opening a FIFO for reading waits for a writer).
+/// Why `path` cannot be opened, in words: missing, a link to nothing, a loop
+/// of links, or the system's reason.
+pub fn why_unreadable(path: &Path) -> String {
+    match std::fs::metadata(path) {
+        Ok(_) => "not a regular file or a folder (a FIFO or device?)".into(),
+        // ELOOP on Linux and macOS: the system's own words would do, but std maps it to "other".
+        Err(e) if e.raw_os_error() == Some(40) || e.raw_os_error() == Some(62) => {
+            "a loop of symbolic links (it links back to itself)".into()
+        }
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => match std::fs::read_link(path) {
+            Ok(target) => format!("a symbolic link to {}, which does not exist", target.display()),
+            Err(_) => "no such file or folder".into(),
+        },
+        Err(e) => e.to_string(),
+    }
+}
+
 pub fn check_regular(path: &Path) -> Result<()> {
     let meta = std::fs::metadata(path).map_err(|e| DataError::io(path, e))?;
     if !meta.is_file() {

@@ -61,3 +61,20 @@ fn a_killed_write_leaves_a_sibling_that_the_next_write_of_the_same_target_remove
     assert_eq!(datasets::atomic::remove_stale_siblings(&bag, ".mcap").unwrap(), 1);
     assert_eq!(names(root.path()), [".tmp-run-2.~Ab12Cd", "run"]);
 }
+
+#[cfg(unix)]
+#[test]
+fn a_link_loop_and_a_dangling_link_are_named_as_what_they_are() {
+    let dir = tempfile::tempdir().unwrap();
+    let looped = dir.path().join("loop.bag");
+    std::os::unix::fs::symlink(&looped, &looped).unwrap();
+    let dangling = dir.path().join("gone.mcap");
+    std::os::unix::fs::symlink(dir.path().join("moved.mcap"), &dangling).unwrap();
+    let error = |p: &std::path::Path| datasets::recording::Recording::open(p).err().unwrap().to_string();
+    let m = error(&looped);
+    assert!(m.contains("loop.bag") && m.contains("a loop of symbolic links"), "{m}");
+    let m = error(&dangling);
+    assert!(m.contains("gone.mcap") && m.contains("moved.mcap, which does not exist"), "{m}");
+    let m = error(&dir.path().join("never.bag"));
+    assert!(m.contains("no such file or folder"), "{m}");
+}

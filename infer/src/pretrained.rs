@@ -104,7 +104,7 @@ pub struct FileTensor {
 pub fn read_tensors(path: &Path) -> Result<BTreeMap<String, FileTensor>, PretrainedError> {
     let err = |message: String| PretrainedError::Read { path: path.to_path_buf(), message };
     if !path.is_file() {
-        return Err(err("no such file".into()));
+        return Err(err(datasets::atomic::why_unreadable(path)));
     }
     let raw = if is_safetensors(path).map_err(|e| err(e.to_string()))? {
         let mut store = SafetensorsStore::from_file(path);

@@ -133,10 +133,8 @@ impl Recording {
                     "not a recording (expected a rosbag2 folder, an MCAP file, a rosbag2 .db3 or a ROS 1 .bag)",
                 ));
             }
-        } else if path.exists() {
-            return Err(DataError::invalid(path, "not a regular file or a folder (a FIFO or device?)"));
         } else {
-            return Err(DataError::invalid(path, "no such file or folder"));
+            return Err(DataError::invalid(path, crate::atomic::why_unreadable(path)));
         };
         let mut recording = Self { path: path.to_path_buf(), format, topics: Vec::new(), source, compression };
         recording.topics = recording.read_topics()?;

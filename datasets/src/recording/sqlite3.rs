@@ -16,7 +16,7 @@ fn sql_error(path: &Path, e: rusqlite::Error) -> DataError {
 
 fn open(path: &Path) -> Result<Connection> {
     if !path.is_file() {
-        return Err(DataError::invalid(path, "no such file"));
+        return Err(DataError::invalid(path, crate::atomic::why_unreadable(path)));
     }
     // Read only, and never create a database where a file is missing.
     Connection::open_with_flags(path, OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_NO_MUTEX)
