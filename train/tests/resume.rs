@@ -118,3 +118,22 @@ fn bad_flags_and_unusable_folders_get_messages_that_name_them() {
     assert!(message.contains("a-file"), "{message}");
     assert!(!message.to_lowercase().contains("backtrace"), "{message}");
 }
+
+#[test]
+fn a_relative_data_folder_is_kept_absolute_so_a_resume_from_elsewhere_finds_it() {
+    let data = common::tiny_data();
+    let out = tempfile::tempdir().unwrap();
+    let run = out.path().join("run");
+    let status = std::process::Command::new(env!("CARGO_BIN_EXE_train"))
+        .current_dir(data.parent().unwrap())
+        .args(["--backbone", "alexnet", "--data", "detection", "--width", "0.125", "--epochs", "1"])
+        .args(["--batch-size", "2", "--out", run.to_str().unwrap()])
+        .env("CI", "true")
+        .output()
+        .unwrap();
+    assert!(status.status.success(), "{}", String::from_utf8_lossy(&status.stderr));
+    let settings: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.join("train_config.json")).unwrap()).unwrap();
+    let kept = std::path::PathBuf::from(settings["data"].as_str().unwrap());
+    assert!(kept.is_absolute() && kept == *data, "{kept:?} vs {data:?}");
+}

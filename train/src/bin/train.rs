@@ -126,7 +126,9 @@ fn run_main() -> Result<()> {
                     );
                 }
             }
-            let mut c = TrainConfig::new(backbone, args.width, data.clone());
+            // Kept absolute: `--resume` may run from another working directory.
+            let data = std::path::absolute(data).map_err(|e| datasets::DataError::io(data, e))?;
+            let mut c = TrainConfig::new(backbone, args.width, data);
             if let Some(e) = args.epochs {
                 c.epochs = e;
             }
