@@ -7,12 +7,15 @@ use std::path::Path;
 
 use crate::error::{DataError, Result};
 
+/// The folder `path` is in (`.` for a bare name): where its temporary
+/// siblings go.
+pub fn folder_of(path: &Path) -> &Path {
+    path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."))
+}
+
 /// Writes `path` through `fill`, atomically.
 pub fn write_with(path: &Path, fill: impl FnOnce(&mut dyn Write) -> std::io::Result<()>) -> Result<()> {
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
+    let dir = folder_of(path);
     std::fs::create_dir_all(dir).map_err(|e| DataError::io(dir, e))?;
     let mut builder = tempfile::Builder::new();
     builder.prefix(".tmp-");
@@ -56,10 +59,7 @@ pub fn write_dir<E: From<DataError>>(
     dir: &Path,
     fill: impl FnOnce(&Path) -> std::result::Result<(), E>,
 ) -> std::result::Result<(), E> {
-    let parent = match dir.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
+    let parent = folder_of(dir);
     std::fs::create_dir_all(parent).map_err(|e| DataError::io(parent, e))?;
     recover_dir(dir)?;
     remove_stale_siblings(dir, "")?;
@@ -82,10 +82,7 @@ pub fn write_dir<E: From<DataError>>(
 /// temporary file tried in it, so that an unwritable output fails before
 /// the work, not after it.
 pub fn check_writable(target: &Path) -> Result<()> {
-    let parent = match target.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
+    let parent = folder_of(target);
     std::fs::create_dir_all(parent).map_err(|e| DataError::io(parent, e))?;
     tempfile::Builder::new()
         .prefix(&sibling_prefix(target))
@@ -105,26 +102,12 @@ pub fn sibling_prefix(target: &Path) -> String {
 /// Removes the temporary siblings of `target` (named by `sibling_prefix`,
 /// six random characters, then `suffix`) that a killed write left; how many.
 pub fn remove_stale_siblings(target: &Path, suffix: &str) -> Result<usize> {
-    let parent = match target.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
+    let parent = folder_of(target);
     let prefix = sibling_prefix(target);
-    let Ok(entries) = std::fs::read_dir(parent) else { return Ok(0) };
-    let mut removed = 0;
-    for entry in entries {
-        let entry = entry.map_err(|e| DataError::io(parent, e))?;
-        let name = entry.file_name().to_string_lossy().into_owned();
+    remove_entries(parent, |name| {
         let random = name.strip_prefix(&prefix).and_then(|rest| rest.strip_suffix(suffix));
-        if !random.is_some_and(|r| r.len() == 6 && r.chars().all(|c| c.is_ascii_alphanumeric())) {
-            continue;
-        }
-        let path = entry.path();
-        let gone = if path.is_dir() { std::fs::remove_dir_all(&path) } else { std::fs::remove_file(&path) };
-        gone.map_err(|e| DataError::io(&path, e))?;
-        removed += 1;
-    }
-    Ok(removed)
+        random.is_some_and(|r| r.len() == 6 && r.chars().all(|c| c.is_ascii_alphanumeric()))
+    })
 }
 
 /// Puts back a folder that a kill between `write_dir`'s two renames left
@@ -144,15 +127,21 @@ pub fn recover_dir(dir: &Path) -> Result<bool> {
 /// Removes the temporary files and folders (`.tmp-*`) that a killed writer
 /// left in `dir`; only for a folder that no other writer is using.
 pub fn remove_leftovers(dir: &Path) -> Result<usize> {
-    let mut removed = 0;
+    remove_entries(dir, |name| name.starts_with(".tmp-"))
+}
+
+/// Removes the files and folders in `dir` whose names `doomed` picks; how
+/// many. A missing `dir` has none.
+fn remove_entries(dir: &Path, doomed: impl Fn(&str) -> bool) -> Result<usize> {
     let entries = match std::fs::read_dir(dir) {
         Ok(entries) => entries,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(0),
         Err(e) => return Err(DataError::io(dir, e)),
     };
+    let mut removed = 0;
     for entry in entries {
         let entry = entry.map_err(|e| DataError::io(dir, e))?;
-        if !entry.file_name().to_string_lossy().starts_with(".tmp-") {
+        if !doomed(&entry.file_name().to_string_lossy()) {
             continue;
         }
         let path = entry.path();

@@ -42,8 +42,7 @@ impl EdgeMap {
     }
 
     fn key(&self, p: &Vec3) -> [i32; 3] {
-        let k = |v: f64| (v / self.voxel_m).floor() as i32;
-        [k(p.x), k(p.y), k(p.z)]
+        crate::point_map::voxel_key(p, self.voxel_m)
     }
 
     /// The squared distance from `query` to the cube of voxel `key`.

@@ -69,6 +69,12 @@ impl Voxel {
     }
 }
 
+/// The voxel of edge `voxel_m` that holds `p` (also the edge map's).
+pub(crate) fn voxel_key(p: &Vec3, voxel_m: f64) -> [i32; 3] {
+    let k = |v: f64| (v / voxel_m).floor() as i32;
+    [k(p.x), k(p.y), k(p.z)]
+}
+
 pub struct PointMap {
     voxel_m: f64,
     points_per_voxel: usize,
@@ -93,8 +99,7 @@ impl PointMap {
     }
 
     fn key(&self, p: &Vec3) -> [i32; 3] {
-        let k = |v: f64| (v / self.voxel_m).floor() as i32;
-        [k(p.x), k(p.y), k(p.z)]
+        voxel_key(p, self.voxel_m)
     }
 
     /// Adds robot-frame points and normals placed in the world by `pose`;

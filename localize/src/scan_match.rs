@@ -609,10 +609,9 @@ mod tests {
         assert!((w.transpose() * w - fix.information).norm() < 1e-6 * fix.information.norm());
     }
 
-    #[test]
-    fn a_corridor_gives_no_information_along_its_axis() {
-        // Two walls and a floor along x: x cannot be measured.
-        let mut rng = ChaCha8Rng::seed_from_u64(12);
+    /// Two walls 2 m apart and a floor along x, 10 m long, with normals.
+    fn corridor(seed: u64) -> (Vec<Vec3>, Vec<Vec3>) {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let (mut points, mut normals) = (Vec::new(), Vec::new());
         for _ in 0..1500 {
             let u = rng.random_range(-5.0..5.0);
@@ -620,6 +619,13 @@ mod tests {
             points.extend([Vec3::new(u, -1.0, v), Vec3::new(u, 1.0, v), Vec3::new(u, 2.0 * v - 1.0, -0.5)]);
             normals.extend([Vec3::y(), -Vec3::y(), Vec3::z()]);
         }
+        (points, normals)
+    }
+
+    #[test]
+    fn a_corridor_gives_no_information_along_its_axis() {
+        // Two walls and a floor along x: x cannot be measured.
+        let (points, normals) = corridor(12);
         let scan = ScanPoints { points, normals, edges: Vec::new() };
         let matcher = ScanMatcher::new(ScanMatchConfig::default()).unwrap();
         let mut map = matcher.new_map();
@@ -633,14 +639,7 @@ mod tests {
     fn an_edge_across_a_corridor_measures_its_axis() {
         // The corridor above, and a door frame's vertical edge at x = 0.5
         // on its left wall: the planes leave x free, the edge pins it.
-        let mut rng = ChaCha8Rng::seed_from_u64(14);
-        let (mut points, mut normals) = (Vec::new(), Vec::new());
-        for _ in 0..1500 {
-            let u = rng.random_range(-5.0..5.0);
-            let v = rng.random_range(0.0..1.0);
-            points.extend([Vec3::new(u, -1.0, v), Vec3::new(u, 1.0, v), Vec3::new(u, 2.0 * v - 1.0, -0.5)]);
-            normals.extend([Vec3::y(), -Vec3::y(), Vec3::z()]);
-        }
+        let (points, normals) = corridor(14);
         let edges: Vec<Vec3> = (0..100).map(|k| Vec3::new(0.5, -1.0, 0.01 * k as f64)).collect();
         let matcher = ScanMatcher::new(ScanMatchConfig::default()).unwrap();
         let (mut map, mut edge_map) = (matcher.new_map(), matcher.new_edge_map());

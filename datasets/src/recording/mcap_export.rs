@@ -278,7 +278,7 @@ pub fn write_sequence_mcap(dir: &Path, out: &Path) -> Result<usize> {
     let start = events.first().map_or(0, |e| e.0);
 
     // Written beside the target under a temporary name, renamed when whole.
-    let parent = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let parent = crate::atomic::folder_of(out);
     std::fs::create_dir_all(parent).map_err(|e| DataError::io(parent, e))?;
     // What a killed export of this bag left goes first.
     crate::atomic::remove_stale_siblings(out, ".mcap")?;
