@@ -281,10 +281,19 @@ def write_ros1(path, msgs, compression):
     with writer:
         connections = {}
         for topic, msgtype, stamp, value in msgs:
-            if topic not in connections:
-                connections[topic] = writer.add_connection(topic, msgtype, typestore=ROS1)
+            if (topic, msgtype) not in connections:
+                connections[topic, msgtype] = writer.add_connection(topic, msgtype, typestore=ROS1)
             raw = ROS1.serialize_ros1(to_message(ROS1, msgtype, value), msgtype)
-            writer.write(connections[topic], stamp, raw)
+            writer.write(connections[topic, msgtype], stamp, raw)
+
+
+def write_two_types(out, data):
+    """A damaged recording: /odom's Odometry published on /imu beside the IMU,
+    one topic with two message types, which the readers must refuse."""
+    msgs, _ = messages(data, 'ouster32', 'mono8', True)
+    imu = [m for m in msgs if m[0] == '/imu'][:8]
+    odom = [('/imu',) + m[1:] for m in msgs if m[0] == '/odom'][:4]
+    write_ros1(out / 'ros1_two_types.bag', sorted(imu + odom, key=lambda m: m[2]), None)
 
 
 def ros2_msgdef(msgtype):
@@ -357,6 +366,7 @@ def main(out):
             write_ros1(path, msgs, fmt)
         manifest['recordings'][name] = dict(layout=layout, image=image)
         manifest['layouts'][layout] = expected['topics']['/points']
+    write_two_types(out, data)
     (out / 'expected.json').write_text(json.dumps(manifest, allow_nan=False, separators=(',', ':')))
     print(f'wrote {len(plan)} recordings to {out}')
 

@@ -317,6 +317,20 @@ fn truncated_recordings_are_errors_naming_the_file() {
 }
 
 #[test]
+fn a_ros1_topic_with_two_message_types_is_refused_naming_both() {
+    // Written by rosbags: /odom's Odometry on /imu beside the IMU messages.
+    let path = fixtures().join("ros1_two_types.bag");
+    let error = Recording::open(&path).map(|r| r.topics.len()).unwrap_err().to_string();
+    assert!(
+        error.contains("ros1_two_types.bag")
+            && error.contains("/imu carries two message types")
+            && error.contains("sensor_msgs/msg/Imu")
+            && error.contains("nav_msgs/msg/Odometry"),
+        "{error}"
+    );
+}
+
+#[test]
 fn an_unknown_chunk_compression_is_named() {
     let dir = tempfile::tempdir().unwrap();
     let path = copy_fixture("ros1_lz4.bag", dir.path());
