@@ -178,6 +178,13 @@ pub fn generated() -> Vec<(Target, Vec<u8>)> {
         Target::Rosbag2Metadata,
         b"rosbag2_bagfile_information:\n  version: 5\n  storage_identifier: mcap\n  relative_file_paths:\n    - bag_0.mcap\n  compression_format: zstd\n  compression_mode: FILE\n".to_vec(),
     ));
+    // Anchors and aliases: a small document that expands a little, and a
+    // billion-node one the reader must refuse before expanding it.
+    out.push((
+        Target::Rosbag2Metadata,
+        b"rosbag2_bagfile_information:\n  version: 5\n  storage_identifier: &s sqlite3\n  relative_file_paths: &f\n    - bag_0.db3\n  files: *f\n  custom: [*s, *s, *f]\n".to_vec(),
+    ));
+    out.push((Target::Rosbag2Metadata, alias_bomb(9, 10).into_bytes()));
     let messages = [
         (datasets::recording::MessageKind::PointCloud2, mcap_export::point_cloud2(1_500_000_000, "lidar", &cloud)),
         (
@@ -196,12 +203,83 @@ pub fn generated() -> Vec<(Target, Vec<u8>)> {
             mcap_export::pose_stamped(1_500_000_000, "map", &trajectory.poses[4]),
         ),
     ];
+    out.push((Target::McapContent, uncompressed_mcap(&messages)));
     for (kind, data) in messages {
         let mut input = vec![message_selector(kind, Encoding::Cdr)];
         input.extend(data);
         out.push((Target::RosMessage, input));
     }
+    out.push((Target::Map, map_folder()));
     out
+}
+
+/// A metadata.yaml whose aliases nest `levels` deep, each `width` wide:
+/// `width^levels` nodes once expanded.
+pub fn alias_bomb(levels: usize, width: usize) -> String {
+    let mut yaml = String::from("a0: &a0 [x]\n");
+    for level in 1..=levels {
+        let refs = vec![format!("*a{}", level - 1); width].join(", ");
+        yaml.push_str(&format!("a{level}: &a{level} [{refs}]\n"));
+    }
+    yaml.push_str(&format!(
+        "rosbag2_bagfile_information:\n  version: 5\n  storage_identifier: mcap\n  relative_file_paths: *a{levels}\n"
+    ));
+    yaml
+}
+
+/// One MCAP with uncompressed chunks (and their CRCs), one message of each
+/// kind on a topic of its type: the `mcap_content` target's seed.
+fn uncompressed_mcap(messages: &[(datasets::recording::MessageKind, Vec<u8>)]) -> Vec<u8> {
+    let mut out = std::io::Cursor::new(Vec::new());
+    let mut writer =
+        mcap::WriteOptions::new().compression(None).profile("ros2").create(&mut out).expect("an MCAP writer");
+    for (k, (kind, data)) in messages.iter().enumerate() {
+        let schema = writer.add_schema(kind.type_name(), "ros2msg", b"").expect("a schema");
+        let channel = writer
+            .add_channel(schema, &format!("/topic{k}"), "cdr", &std::collections::BTreeMap::new())
+            .expect("a channel");
+        let header = mcap::records::MessageHeader {
+            channel_id: channel,
+            sequence: k as u32,
+            log_time: 1_500_000_000 + k as u64,
+            publish_time: 1_500_000_000 + k as u64,
+        };
+        writer.write_to_known_channel(&header, data).expect("a message");
+    }
+    writer.finish().expect("a finished MCAP");
+    drop(writer);
+    out.into_inner()
+}
+
+/// A small map as `localize run` writes it (the `map` target's layout:
+/// map.json, NUL, map.ply).
+fn map_folder() -> Vec<u8> {
+    use localize::map_output::{SavedMap, write_map};
+    let corner = serde_json::json!({"position": [1.0, 2.0, 1.5], "observations": 3,
+        "sum": [3.0, 6.0, 4.5], "square_sum": 21.76, "used": 3});
+    let wall = serde_json::json!({"normal": [1.0, 0.0, 0.0], "distance": 2.0, "observations": 3,
+        "normal_sum": [3.0, 0.0, 0.0], "distance_sum": 6.0, "distance_square_sum": 12.01,
+        "weight": 3.0, "point_sum": [6.0, 1.5, 3.0]});
+    let trajectory = small_trajectory();
+    let map = SavedMap {
+        corners: vec![serde_json::from_value(corner).expect("a corner")],
+        walls: vec![serde_json::from_value(wall).expect("a wall")],
+        wall_axis: Some(0.1),
+        points: (0..4)
+            .map(|k| localize::point_map::MapPoint {
+                position: datasets::math::Vec3::new(2.0, k as f64 * 0.1, 1.0),
+                normal: -datasets::math::Vec3::x(),
+            })
+            .collect(),
+        keyframes: trajectory.poses[..3].to_vec(),
+        truth_origin: Some(trajectory.poses[1]),
+    };
+    let dir = tempfile::tempdir().expect("a temporary folder");
+    write_map(dir.path(), &map).expect("a map writes");
+    let mut bytes = std::fs::read(dir.path().join("map.json")).expect("map.json");
+    bytes.push(0);
+    bytes.extend(std::fs::read(dir.path().join("map.ply")).expect("map.ply"));
+    bytes
 }
 
 fn tiny_png() -> Vec<u8> {

@@ -24,13 +24,15 @@ pub enum Target {
     CheckpointConfig,
     Rosbag2Metadata,
     Mcap,
+    McapContent,
     Ros1Bag,
     Sqlite3,
     RosMessage,
+    Map,
 }
 
 impl Target {
-    pub const ALL: [Target; 14] = [
+    pub const ALL: [Target; 16] = [
         Self::Pcd,
         Self::Ply,
         Self::KittiBin,
@@ -42,9 +44,11 @@ impl Target {
         Self::CheckpointConfig,
         Self::Rosbag2Metadata,
         Self::Mcap,
+        Self::McapContent,
         Self::Ros1Bag,
         Self::Sqlite3,
         Self::RosMessage,
+        Self::Map,
     ];
 
     pub fn name(self) -> &'static str {
@@ -60,9 +64,11 @@ impl Target {
             Self::CheckpointConfig => "checkpoint_config",
             Self::Rosbag2Metadata => "rosbag2_metadata",
             Self::Mcap => "mcap",
+            Self::McapContent => "mcap_content",
             Self::Ros1Bag => "ros1_bag",
             Self::Sqlite3 => "sqlite3",
             Self::RosMessage => "ros_message",
+            Self::Map => "map",
         }
     }
 
@@ -117,9 +123,11 @@ impl Target {
                 }
             }
             Self::Mcap => mcap(data),
+            Self::McapContent => mcap(&with_mcap_crcs(data)),
             Self::Ros1Bag => ros1(data),
             Self::Sqlite3 => sqlite(data),
             Self::RosMessage => ros_message(data),
+            Self::Map => map(data),
         }
     }
 
@@ -138,10 +146,10 @@ impl Target {
             Self::Coco => ext == "json" && !name.starts_with("calib") && name != "config.json",
             Self::CheckpointConfig => name == "config.json",
             Self::Rosbag2Metadata => name == "metadata.yaml",
-            Self::Mcap => ext == "mcap",
+            Self::Mcap | Self::McapContent => ext == "mcap",
             Self::Ros1Bag => ext == "bag",
             Self::Sqlite3 => ext == "db3",
-            Self::RosMessage => false,
+            Self::RosMessage | Self::Map => false,
         }
     }
 }
@@ -238,17 +246,7 @@ fn decode_message(kind: MessageKind, encoding: Encoding, data: &[u8]) {
     }
 }
 
-pub const MESSAGE_KINDS: [MessageKind; 9] = [
-    MessageKind::PointCloud2,
-    MessageKind::Image,
-    MessageKind::CompressedImage,
-    MessageKind::CameraInfo,
-    MessageKind::Imu,
-    MessageKind::Odometry,
-    MessageKind::TfMessage,
-    MessageKind::PoseStamped,
-    MessageKind::PoseWithCovarianceStamped,
-];
+pub const MESSAGE_KINDS: [MessageKind; 9] = MessageKind::ALL;
 
 /// The byte that selects a message's kind and wire format in the
 /// `ros_message` target (its first byte).
@@ -309,5 +307,83 @@ fn sqlite(data: &[u8]) {
                 let _ = sqlite3::visit(file.path(), visit);
             });
         }
+    });
+}
+
+/// The MCAP with the CRCs of its uncompressed chunks and of its data section
+/// recomputed, so that a mutation of a chunk's messages reaches the message
+/// readers instead of stopping at the CRC check. Records are walked as far
+/// as their lengths allow; the rest is left as it is.
+pub fn with_mcap_crcs(data: &[u8]) -> Vec<u8> {
+    const MAGIC: usize = 8;
+    const CHUNK: u8 = 0x06;
+    const DATA_END: u8 = 0x0F;
+    let mut out = data.to_vec();
+    let mut at = MAGIC;
+    while at + 9 <= out.len() {
+        let op = out[at];
+        let len = u64::from_le_bytes(out[at + 1..at + 9].try_into().expect("8 bytes"));
+        let body = at + 9;
+        let Some(end) = usize::try_from(len).ok().and_then(|l| body.checked_add(l)).filter(|&e| e <= out.len()) else {
+            break;
+        };
+        if op == CHUNK {
+            fix_chunk_crc(&mut out[body..end]);
+        } else if op == DATA_END && end - body >= 4 {
+            let crc = crc32fast::hash(&out[..at]);
+            out[body..body + 4].copy_from_slice(&crc.to_le_bytes());
+        }
+        at = end;
+    }
+    out
+}
+
+/// An uncompressed chunk's body: times (16 bytes), uncompressed size (8),
+/// uncompressed CRC (4), compression (length-prefixed), records (length-prefixed).
+fn fix_chunk_crc(body: &mut [u8]) {
+    let u32_at = |b: &[u8], i: usize| b.get(i..i + 4).map(|s| u32::from_le_bytes(s.try_into().expect("4 bytes")));
+    let Some(compression_len) = u32_at(body, 28) else { return };
+    if compression_len != 0 || body.len() < 40 {
+        return;
+    }
+    let records = &body[40..];
+    let (size, crc) = (records.len() as u64, crc32fast::hash(records));
+    body[16..24].copy_from_slice(&size.to_le_bytes());
+    body[24..28].copy_from_slice(&crc.to_le_bytes());
+    body[32..40].copy_from_slice(&size.to_le_bytes());
+}
+
+/// A map folder as `localize run --map` reads it: `map.json`, a NUL byte,
+/// then `map.ply` (JSON text holds no raw NUL). An accepted map keeps the
+/// reader's promises: poses, points, normals, corners and walls a run can
+/// compute with.
+fn map(data: &[u8]) {
+    thread_local! {
+        static DIR: tempfile::TempDir = tempfile::tempdir().expect("a temporary folder");
+    }
+    let split = data.iter().position(|&b| b == 0).unwrap_or(data.len());
+    let (json, ply) = (&data[..split], data.get(split + 1..).unwrap_or(&[]));
+    DIR.with(|dir| {
+        std::fs::write(dir.path().join("map.json"), json).expect("writing map.json");
+        std::fs::write(dir.path().join("map.ply"), ply).expect("writing map.ply");
+        let Ok(map) = localize::map_output::read_map(dir.path()) else { return };
+        let finite = |v: &datasets::math::Vec3| v.iter().all(|x| x.is_finite());
+        for pose in map.keyframes.iter().chain(&map.truth_origin) {
+            assert!(finite(&pose.translation.vector) && (pose.rotation.norm() - 1.0).abs() < 1e-9, "a keyframe");
+        }
+        for p in &map.points {
+            assert!(finite(&p.position) && (p.normal.norm() - 1.0).abs() < 1e-2, "a map point: {p:?}");
+        }
+        for c in &map.corners {
+            assert!(finite(&c.position) && c.spread_m().is_finite(), "a corner: {c:?}");
+        }
+        for w in &map.walls {
+            let spreads = [w.offset_spread_m(), w.normal_spread_deg()];
+            assert!(
+                finite(&w.normal) && w.distance.is_finite() && spreads.iter().all(|s| s.is_finite()),
+                "a wall: {w:?}"
+            );
+        }
+        assert!(map.wall_axis.is_none_or(f64::is_finite), "the wall axis");
     });
 }

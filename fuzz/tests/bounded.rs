@@ -66,10 +66,47 @@ fn the_generated_seeds_are_accepted_by_their_parsers() {
             Target::CheckpointConfig => {
                 infer::checkpoint::parse_config("config.json".as_ref(), &String::from_utf8_lossy(&data)).is_ok()
             }
+            Target::McapContent => {
+                let path = std::path::Path::new("c.mcap");
+                let topics = datasets::recording::mcap_file::topics(path, &data).unwrap();
+                let mut n = 0;
+                datasets::recording::mcap_file::visit(path, &data, &mut |_, _, _| {
+                    n += 1;
+                    Ok(())
+                })
+                .unwrap();
+                // The CRCs it was written with are the ones the target would compute.
+                topics.len() == n && n > 5 && fuzz::targets::with_mcap_crcs(&data) == data
+            }
+            Target::Map => {
+                let dir = tempfile::tempdir().unwrap();
+                let split = data.iter().position(|&b| b == 0).unwrap();
+                std::fs::write(dir.path().join("map.json"), &data[..split]).unwrap();
+                std::fs::write(dir.path().join("map.ply"), &data[split + 1..]).unwrap();
+                localize::map_output::read_map(dir.path()).is_ok()
+            }
+            Target::Rosbag2Metadata => {
+                let dir = std::path::Path::new("bag");
+                let read = datasets::recording::rosbag2::parse_metadata(
+                    dir,
+                    &dir.join("metadata.yaml"),
+                    &String::from_utf8_lossy(&data),
+                );
+                // The alias bomb is a seed the reader must refuse.
+                data == fuzz::seeds::alias_bomb(9, 10).as_bytes() || read.is_ok()
+            }
             _ => true,
         };
         assert!(accepted, "a generated {} seed is refused by its own reader", target.name());
     }
+}
+
+#[test]
+fn the_alias_bomb_seed_is_refused_before_it_expands() {
+    let dir = std::path::Path::new("bag");
+    let bomb = fuzz::seeds::alias_bomb(9, 10);
+    let error = datasets::recording::rosbag2::parse_metadata(dir, &dir.join("metadata.yaml"), &bomb).unwrap_err();
+    assert!(error.to_string().contains("metadata.yaml"), "{error}");
 }
 
 #[test]

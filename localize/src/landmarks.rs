@@ -36,6 +36,18 @@ pub struct Landmark {
 }
 
 impl Landmark {
+    /// Whether its numbers can be averaged on: finite, and at least one
+    /// observation averaged in, no more than it was seen (a map file may say
+    /// otherwise).
+    pub fn is_valid(&self) -> bool {
+        let finite = |v: &Vec3| v.iter().all(|x| x.is_finite());
+        finite(&self.position)
+            && finite(&self.sum)
+            && self.square_sum.is_finite()
+            && self.square_sum >= 0.0
+            && (1..=self.observations).contains(&self.used)
+    }
+
     /// RMS distance of the observations from their mean.
     pub fn spread_m(&self) -> f64 {
         let n = self.used as f64;

@@ -129,15 +129,15 @@ pub fn write_map(dir: &Path, map: &SavedMap) -> datasets::Result<()> {
     datasets::atomic::write_json(&dir.join("map.json"), &file)
 }
 
-/// Reads the map `localize run` wrote into `dir` (`map.json` and
-/// `map.ply`); any other file, a torn one, or one whose numbers are not
-/// finite is an error naming it.
 /// The most keyframes a map may hold (a route of several kilometres).
 pub const MAX_KEYFRAMES: usize = 5000;
 /// Farthest a map's poses, corners and walls may lie from its origin: a
 /// building's map is not a continent's.
 pub const MAX_COORDINATE_M: f64 = 1e6;
 
+/// Reads the map `localize run` wrote into `dir` (`map.json` and
+/// `map.ply`); any other file, a torn one, or one whose numbers are not
+/// finite is an error naming it.
 pub fn read_map(dir: &Path) -> datasets::Result<SavedMap> {
     let json_path = dir.join("map.json");
     let text = datasets::atomic::read_text(&json_path)?;
@@ -173,10 +173,13 @@ pub fn read_map(dir: &Path) -> datasets::Result<SavedMap> {
         })?),
         None => None,
     };
-    if let Some(k) = file.corners.iter().position(|c| !within(&c.position)) {
+    if let Some(k) = file.corners.iter().position(|c| !within(&c.position) || !c.is_valid()) {
         return Err(DataError::invalid(
             &json_path,
-            format!("corner {k} is not a position within {MAX_COORDINATE_M} m"),
+            format!(
+                "corner {k} is not a position within {MAX_COORDINATE_M} m with finite sums and 1 to `observations` \
+                 observations used"
+            ),
         ));
     }
     if let Some(k) = file.walls.iter().position(|w| !w.is_valid()) {
@@ -300,6 +303,14 @@ mod tests {
         let m = read_map(dir.path()).unwrap_err().to_string();
         assert!(m.contains("5001 keyframes, more than the 5000"), "{m}");
         old["keyframes"] = serde_json::json!([]);
+        // A corner averaged over no observation, or over more than it saw, would divide by 0 or drift: named.
+        for used in [0, 4] {
+            old["corners"] = serde_json::json!([{"position": [1.0, 2.0, 3.0], "observations": 3,
+                "sum": [3.0, 6.0, 9.0], "square_sum": 42.0, "used": used}]);
+            std::fs::write(&json, old.to_string()).unwrap();
+            let m = read_map(dir.path()).unwrap_err().to_string();
+            assert!(m.contains("corner 0") && m.contains("observations used"), "used {used}: {m}");
+        }
         write_map(dir.path(), &map).unwrap();
         let ply = dir.path().join("map.ply");
         let bytes = std::fs::read(&ply).unwrap();

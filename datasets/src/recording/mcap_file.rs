@@ -59,6 +59,7 @@ fn for_each_message(path: &Path, bytes: &[u8], f: &mut dyn FnMut(mcap::Message<'
         .with_record_length_limit(MAX_RECORD_BYTES)
         .with_prevalidate_chunk_crcs(true)
         .with_validate_data_section_crc(true);
+    super::mcap_lengths::check(path, bytes)?;
     let mut reader = MessageReader::new_with_options(options);
     let mut rest = bytes;
     while let Some(event) = reader.next_event() {
@@ -108,6 +109,7 @@ pub fn topics(path: &Path, bytes: &[u8]) -> Result<Vec<TopicInfo>> {
         }
         Ok(())
     };
+    super::mcap_lengths::check(path, bytes)?;
     let summary = mcap::Summary::read(bytes).map_err(|e| mcap_error(path, e))?;
     if let Some(summary) = summary.filter(|s| s.stats.is_some() && !s.chunk_indexes.is_empty()) {
         let stats = summary.stats.as_ref().expect("checked");

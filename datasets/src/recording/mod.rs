@@ -5,6 +5,7 @@
 
 pub mod mcap_export;
 pub mod mcap_file;
+mod mcap_lengths;
 pub mod messages;
 pub mod pose_topic;
 pub mod ros1_bag;

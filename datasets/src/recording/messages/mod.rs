@@ -62,19 +62,37 @@ pub enum MessageKind {
 }
 
 impl MessageKind {
+    pub const ALL: [MessageKind; 9] = [
+        Self::PointCloud2,
+        Self::Image,
+        Self::CompressedImage,
+        Self::CameraInfo,
+        Self::Imu,
+        Self::Odometry,
+        Self::TfMessage,
+        Self::PoseStamped,
+        Self::PoseWithCovarianceStamped,
+    ];
+
+    /// The ROS 2 name of its type.
+    pub fn type_name(self) -> &'static str {
+        match self {
+            Self::PointCloud2 => "sensor_msgs/msg/PointCloud2",
+            Self::Image => "sensor_msgs/msg/Image",
+            Self::CompressedImage => "sensor_msgs/msg/CompressedImage",
+            Self::CameraInfo => "sensor_msgs/msg/CameraInfo",
+            Self::Imu => "sensor_msgs/msg/Imu",
+            Self::Odometry => "nav_msgs/msg/Odometry",
+            Self::TfMessage => "tf2_msgs/msg/TFMessage",
+            Self::PoseStamped => "geometry_msgs/msg/PoseStamped",
+            Self::PoseWithCovarianceStamped => "geometry_msgs/msg/PoseWithCovarianceStamped",
+        }
+    }
+
+    /// The kind of a type name, in ROS 1 or ROS 2 spelling.
     pub fn of(type_name: &str) -> Option<Self> {
-        Some(match canonical_type(type_name).as_str() {
-            "sensor_msgs/msg/PointCloud2" => Self::PointCloud2,
-            "sensor_msgs/msg/Image" => Self::Image,
-            "sensor_msgs/msg/CompressedImage" => Self::CompressedImage,
-            "sensor_msgs/msg/CameraInfo" => Self::CameraInfo,
-            "sensor_msgs/msg/Imu" => Self::Imu,
-            "nav_msgs/msg/Odometry" => Self::Odometry,
-            "tf2_msgs/msg/TFMessage" => Self::TfMessage,
-            "geometry_msgs/msg/PoseStamped" => Self::PoseStamped,
-            "geometry_msgs/msg/PoseWithCovarianceStamped" => Self::PoseWithCovarianceStamped,
-            _ => return None,
-        })
+        let canonical = canonical_type(type_name);
+        Self::ALL.into_iter().find(|k| k.type_name() == canonical)
     }
 }
 

@@ -1,0 +1,187 @@
+//! The declared lengths inside an MCAP file's records, checked before the
+//! `mcap` crate reads them: the crate allocates a string, a byte array or a
+//! map for the length a record declares before it finds that the record is
+//! shorter, so one damaged length field asks for up to 4 GiB. Here every
+//! length-prefixed field of every record (top level, and inside uncompressed
+//! chunks) must fit in its record. Compressed chunks are covered by their
+//! CRC, which the reader checks before it parses their records.
+
+use std::path::Path;
+
+use crate::error::{DataError, Result};
+
+/// The fields of a record, in order, as far as they hold lengths.
+#[derive(Clone, Copy)]
+enum Field {
+    Fixed(usize),
+    /// u32 length, then that many bytes (strings, byte arrays, maps of fixed-size entries).
+    Bytes32,
+    /// u64 length, then that many bytes.
+    Bytes64,
+    /// u32 byte length, then string-to-string entries.
+    StringMap,
+    /// u64 length, then records (an uncompressed chunk's, when the compression is empty).
+    ChunkRecords,
+}
+
+use Field::{Bytes32, Bytes64, ChunkRecords, Fixed, StringMap};
+
+/// The layout of each record type that holds a length (MCAP specification, version 0).
+fn layout(op: u8) -> &'static [Field] {
+    match op {
+        0x01 => &[Bytes32, Bytes32],                      // Header
+        0x03 => &[Fixed(2), Bytes32, Bytes32, Bytes32],   // Schema
+        0x04 => &[Fixed(4), Bytes32, Bytes32, StringMap], // Channel
+        0x06 => &[Fixed(28), Bytes32, ChunkRecords],      // Chunk
+        0x07 => &[Fixed(2), Bytes32],                     // MessageIndex
+        0x08 => &[Fixed(32), Bytes32, Fixed(8), Bytes32], // ChunkIndex
+        0x09 => &[Fixed(16), Bytes32, Bytes32, Bytes64],  // Attachment
+        0x0A => &[Fixed(40), Bytes32, Bytes32],           // AttachmentIndex
+        0x0B => &[Fixed(30), Bytes32],                    // Statistics
+        0x0C => &[Bytes32, StringMap],                    // Metadata
+        0x0D => &[Fixed(16), Bytes32],                    // MetadataIndex
+        _ => &[],
+    }
+}
+
+/// Checks the records of `bytes` (a whole file: magic, records, magic).
+pub fn check(path: &Path, bytes: &[u8]) -> Result<()> {
+    const MAGIC: usize = 8;
+    if bytes.len() < MAGIC {
+        return Ok(()); // The reader says what is wrong with it.
+    }
+    check_records(path, bytes, MAGIC, bytes.len(), 0)
+}
+
+/// Checks the records in `bytes[from..to]`; a record cut off by `to` is
+/// left to the reader, which names a truncated file as such.
+fn check_records(path: &Path, bytes: &[u8], from: usize, to: usize, depth: u8) -> Result<()> {
+    let mut at = from;
+    while at + 9 <= to {
+        let op = bytes[at];
+        let len = u64::from_le_bytes(bytes[at + 1..at + 9].try_into().expect("8 bytes"));
+        let body = at + 9;
+        let Some(end) = usize::try_from(len).ok().and_then(|l| body.checked_add(l)).filter(|&e| e <= to) else {
+            return Ok(());
+        };
+        check_fields(path, bytes, op, body, end, depth)?;
+        if op == 0x02 {
+            break; // The footer: the closing magic follows.
+        }
+        at = end;
+    }
+    Ok(())
+}
+
+fn check_fields(path: &Path, bytes: &[u8], op: u8, body: usize, end: usize, depth: u8) -> Result<()> {
+    let bad = |at: usize, declared: u64| {
+        DataError::invalid(
+            path,
+            format!(
+                "record of type 0x{op:02x} at byte {}: a field at byte {at} declares {declared} bytes, more than \
+                 the record holds (a damaged length)",
+                body - 9
+            ),
+        )
+    };
+    let u32_at = |i: usize| u32::from_le_bytes(bytes[i..i + 4].try_into().expect("4 bytes")) as u64;
+    let u64_at = |i: usize| u64::from_le_bytes(bytes[i..i + 8].try_into().expect("8 bytes"));
+    let mut at = body;
+    let mut compressed = true;
+    for &field in layout(op) {
+        let (prefix, declared) = match field {
+            Fixed(n) => {
+                at += n;
+                if at > end {
+                    return Ok(()); // Too short for its fixed fields: the reader names it.
+                }
+                continue;
+            }
+            Bytes32 | StringMap if at + 4 <= end => (4, u32_at(at)),
+            Bytes64 | ChunkRecords if at + 8 <= end => (8, u64_at(at)),
+            _ => return Ok(()),
+        };
+        let start = at + prefix;
+        if declared > (end - start) as u64 {
+            return Err(bad(at, declared));
+        }
+        let stop = start + declared as usize;
+        match field {
+            StringMap => check_string_map(&bad, &u32_at, start, stop)?,
+            // The chunk's compression string comes just before its records.
+            Bytes32 if op == 0x06 => compressed = declared != 0,
+            ChunkRecords if !compressed && depth == 0 => check_records(path, bytes, start, stop, depth + 1)?,
+            _ => {}
+        }
+        at = stop;
+    }
+    Ok(())
+}
+
+/// Entries of a string-to-string map: each a u32-prefixed key and value
+/// inside the map's bytes.
+fn check_string_map(
+    bad: &dyn Fn(usize, u64) -> DataError,
+    u32_at: &dyn Fn(usize) -> u64,
+    from: usize,
+    to: usize,
+) -> Result<()> {
+    let mut at = from;
+    while at < to {
+        if at + 4 > to {
+            return Err(bad(at, 4));
+        }
+        let declared = u32_at(at);
+        if declared > (to - at - 4) as u64 {
+            return Err(bad(at, declared));
+        }
+        at += 4 + declared as usize;
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use std::collections::BTreeMap;
+
+    /// An MCAP with one schema, one channel with metadata and one message,
+    /// chunked without compression or not chunked at all.
+    fn written(chunked: bool) -> Vec<u8> {
+        let mut out = std::io::Cursor::new(Vec::new());
+        let mut writer = mcap::WriteOptions::new().compression(None).use_chunks(chunked).create(&mut out).unwrap();
+        let schema = writer.add_schema("sensor_msgs/msg/Imu", "ros2msg", b"float64 x").unwrap();
+        let metadata = BTreeMap::from([("offered_qos_profiles".to_string(), "reliable".to_string())]);
+        let channel = writer.add_channel(schema, "/imu", "cdr", &metadata).unwrap();
+        let header = mcap::records::MessageHeader { channel_id: channel, sequence: 0, log_time: 1, publish_time: 1 };
+        writer.write_to_known_channel(&header, &[0, 1, 0, 0, 7, 7, 7, 7]).unwrap();
+        writer.finish().unwrap();
+        drop(writer);
+        out.into_inner()
+    }
+
+    #[test]
+    fn a_whole_file_passes_and_each_damaged_length_is_named_before_any_allocation() {
+        let path = std::path::Path::new("lengths.mcap");
+        for chunked in [false, true] {
+            let bytes = written(chunked);
+            super::check(path, &bytes).unwrap();
+            // Every place that spells a length of the schema's name, the topic
+            // or the metadata value, set to 2^31: each is refused by name.
+            for needle in [&b"sensor_msgs/msg/Imu"[..], b"/imu", b"reliable"] {
+                let hits: Vec<usize> =
+                    bytes.windows(needle.len()).enumerate().filter(|(_, w)| *w == needle).map(|(i, _)| i).collect();
+                assert!(!hits.is_empty());
+                for at in hits {
+                    let mut damaged = bytes.clone();
+                    damaged[at - 4..at].copy_from_slice(&(1u32 << 31).to_le_bytes());
+                    let error = super::check(path, &damaged).unwrap_err().to_string();
+                    assert!(
+                        error.contains("lengths.mcap") && error.contains("declares 2147483648 bytes"),
+                        "chunked {chunked}, {}: {error}",
+                        String::from_utf8_lossy(needle)
+                    );
+                }
+            }
+        }
+    }
+}
