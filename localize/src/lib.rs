@@ -5,11 +5,14 @@
 // Settings are validated as `!(x > lo)` on purpose: a NaN then fails the check.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+pub mod autolabel;
 pub mod bag_sequence;
 pub mod benchmark;
 pub mod config;
 pub mod corner_source;
+pub mod corner_tracks;
 pub mod corners;
+pub mod depth_buffer;
 pub mod edge_map;
 pub mod ekf;
 pub mod error;

@@ -13,6 +13,7 @@ use serde::Serialize;
 
 use crate::config::LocalizeConfig;
 use crate::corner_source::CornerSource;
+use crate::corner_tracks::{CornerTrackConfig, CornerTracks, structural_corners};
 use crate::ekf::Ekf;
 use crate::error::Result;
 use crate::eval::{Alignment, ErrorSummary, compare};
@@ -43,6 +44,18 @@ pub struct RunResult {
     pub truth_origin: Option<Pose3>,
     /// Where the first scan was placed in a given map.
     pub placement: Option<Placement>,
+    /// The scans' 3D corners followed over the run (when asked for).
+    pub corner_tracks: Option<CornerTracks>,
+}
+
+/// What a run does besides localizing.
+#[derive(Default)]
+pub struct RunOptions {
+    /// A map to start in.
+    pub map: Option<MapStart>,
+    pub show_progress: bool,
+    /// Follow the scans' 3D corners in the world (`corner_tracks`), for `autolabel`.
+    pub track_corners: Option<CornerTrackConfig>,
 }
 
 /// A map to localize in, and optionally where in it the sequence starts
@@ -71,7 +84,21 @@ pub fn run_sequence_in_map(
     map: Option<MapStart>,
     show_progress: bool,
 ) -> Result<RunResult> {
+    run_with(sequence, source, config, RunOptions { map, show_progress, track_corners: None })
+}
+
+/// A run with everything `RunOptions` can ask for.
+pub fn run_with(
+    sequence: &dyn SensorSequence,
+    source: &mut CornerSource,
+    config: &LocalizeConfig,
+    options: RunOptions,
+) -> Result<RunResult> {
+    let RunOptions { map, show_progress, track_corners } = options;
     config.validate()?;
+    if let Some(c) = &track_corners {
+        c.validate().map_err(|e| e.within("corner_tracks"))?;
+    }
     let calibration = sequence.calibration().clone();
     let mut localizer = Localizer::new(config, calibration.clone())?;
     let stamps = sequence.frame_stamps();
@@ -111,6 +138,7 @@ pub fn run_sequence_in_map(
         keyframes: Vec::new(),
         truth_origin,
         placement: None,
+        corner_tracks: track_corners.map(CornerTracks::new),
     };
     let mut unreadable: Vec<String> = Vec::new();
     let mut detector_clock = DetectorClock { rate_hz: config.sync.detector_rate_hz, last: None };
@@ -169,7 +197,14 @@ pub fn run_sequence_in_map(
         // The image's edges are the camera's too: left out with it.
         let edges = if camera_off { Vec::new() } else { edges };
         let camera = CameraCorners { pixels, lidar_from_camera, detect_ms, edges };
+        let scan_corners = match (&result.corner_tracks, &geometry) {
+            (Some(t), Ok(g)) => structural_corners(g, &calibration.robot_from_lidar, t.config.min_plane_extent_m),
+            _ => Vec::new(),
+        };
         let report = localizer.process(stamp, &mut fused, geometry, camera, started);
+        if let Some(tracks) = &mut result.corner_tracks {
+            tracks.observe(stamp, &report.pose, &scan_corners);
+        }
         // What the recording does not measure carries on from this motion.
         if let (Some(&from_stamp), Some(from)) = (result.trajectory.stamps.last(), result.trajectory.poses.last()) {
             replay.carry_on((from, from_stamp), (&report.pose, stamp));

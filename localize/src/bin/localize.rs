@@ -31,6 +31,8 @@ enum Command {
     Eval(EvalArgs),
     /// Localizes a recorded sequence (a folder or a ROS bag): trajectory, per-frame log and, with ground truth, metrics and a picture.
     Run(Box<RunArgs>),
+    /// Corner labels for a recording's own images from its own 3D sensor: a `train --data` folder to fine-tune the detector on.
+    Autolabel(Box<AutolabelArgs>),
     /// Prints what a recording holds (as `ros2 bag info` does) and which topic each role would take.
     Inspect(InspectArgs),
     /// Prints the planes and 3D corners of one point cloud (PCD, PLY or KITTI .bin).
@@ -143,10 +145,10 @@ impl TopicArgs {
     }
 }
 
+/// The recording to localize, as `run` and `autolabel` take it.
 #[derive(clap::Args)]
-#[command(allow_negative_numbers = true)]
 #[group(id = "input", required = true, multiple = false, args = ["sequence", "bag"])]
-struct RunArgs {
+struct InputArgs {
     /// The sequence folder (cloud/, rgb/, [odom.csv], [imu.csv], calib.json[, groundtruth.txt]),
     /// or an RGB-D folder as published (TUM RGB-D's rgb.txt and depth.txt; 7-Scenes' frame-N files).
     #[arg(long)]
@@ -165,14 +167,21 @@ struct RunArgs {
     /// A scan takes the nearest image within this many seconds (default 0.05, or the config's).
     #[arg(long, value_parser = datasets::cli::non_negative)]
     image_tolerance: Option<f64>,
+    /// Settings as JSON (any subset of the sections; see config.json of a run).
+    #[arg(long)]
+    config: Option<PathBuf>,
+}
+
+#[derive(clap::Args)]
+#[command(allow_negative_numbers = true)]
+struct RunArgs {
+    #[command(flatten)]
+    input: InputArgs,
     /// The detector checkpoint folder.
     #[arg(long, default_value = "checkpoints/faster-rcnn")]
     checkpoint: PathBuf,
     #[arg(long)]
     out: PathBuf,
-    /// Settings as JSON (any subset of the sections; see config.json of a run).
-    #[arg(long)]
-    config: Option<PathBuf>,
     /// Instead of the detector, take the 2D corners from this COCO file's
     /// ground-truth points plus Gaussian noise (for testing the geometry apart
     /// from the detector; never the default).
@@ -211,6 +220,23 @@ struct RunArgs {
     seed: u64,
     #[arg(long, value_enum, default_value_t = infer::backend::ComputeBackend::Flex)]
     backend: infer::backend::ComputeBackend,
+}
+
+#[derive(clap::Args)]
+#[command(allow_negative_numbers = true)]
+struct AutolabelArgs {
+    #[command(flatten)]
+    input: InputArgs,
+    /// The `train --data` folder to write (images/, train.json, test.json, autolabel.json, preview/, corners.ply).
+    #[arg(long)]
+    out: PathBuf,
+    /// True labels to score the autolabels against (COCO, matched by image name);
+    /// by default the recording folder's labels.json when it has one (generated sequences do).
+    #[arg(long)]
+    truth_labels: Option<PathBuf>,
+    /// Autolabel settings as JSON (any subset; see autolabel.json of a run).
+    #[arg(long)]
+    autolabel_config: Option<PathBuf>,
 }
 
 #[derive(clap::Args)]
@@ -260,6 +286,7 @@ fn main() -> std::process::ExitCode {
         Command::Eval(args) => eval(&args),
         Command::Planes(args) => planes(&args),
         Command::Run(args) => run(&args),
+        Command::Autolabel(args) => autolabel(&args),
         Command::Inspect(args) => inspect(&args),
         Command::Bench(args) => bench(&args),
         Command::Benchmark(args) => benchmark(&args),
@@ -471,30 +498,39 @@ fn benchmark(args: &BenchmarkArgs) -> Result<()> {
     Ok(())
 }
 
-fn run(args: &RunArgs) -> Result<()> {
-    // Refused before the work, not after it.
-    localize::run::check_output_folder(&args.out)?;
+/// The recording `input` names, opened with the settings for its sensors
+/// (the `--config` file over the defaults of what it carries, `camera` or not).
+fn open_input(
+    input: &InputArgs,
+    camera: bool,
+    faults: SensorFaults,
+) -> Result<(Box<dyn SensorSequence>, LocalizeConfig, SensorSet)> {
     // The defaults follow the recording's sensors, the --config file goes
     // over them. The file is checked before anything is read, over the
     // defaults of the kind of 3D sensor (the IMU and wheels, found on
     // opening, change no range a setting is checked against).
-    let file = read_config_file(args.config.as_deref())?;
-    let range = match &args.sequence {
+    let file = read_config_file(input.config.as_deref())?;
+    let range = match &input.sequence {
         Some(dir) if RgbdSequence::layout_of(dir).is_some() => RangeSensor::DepthCamera,
-        _ if args.topics.depth_topic.is_some() => RangeSensor::DepthCamera,
+        _ if input.topics.depth_topic.is_some() => RangeSensor::DepthCamera,
         _ => RangeSensor::Lidar,
     };
-    let assumed = SensorSet { range, imu: true, wheels: true, camera: !args.without_camera };
-    let defaults_over = |sensors: &SensorSet| match &file {
-        Some(file) => sensors.default_config().overlaid(file).map_err(|m| config_error(args.config.as_deref(), &m)),
-        None => Ok(sensors.default_config()),
+    let assumed = SensorSet { range, imu: true, wheels: true, camera };
+    let defaults_over = |sensors: &SensorSet| -> Result<LocalizeConfig> {
+        let mut config = match &file {
+            Some(file) => {
+                sensors.default_config().overlaid(file).map_err(|m| config_error(input.config.as_deref(), &m))?
+            }
+            None => sensors.default_config(),
+        };
+        if let Some(t) = input.image_tolerance {
+            config.sync.image_tolerance_s = t;
+        }
+        config.sync.validate().map_err(|m| anyhow::anyhow!("--image-tolerance: {m}"))?;
+        Ok(config)
     };
-    let mut config = defaults_over(&assumed)?;
-    if let Some(t) = args.image_tolerance {
-        config.sync.image_tolerance_s = t;
-    }
-    config.sync.validate().map_err(|m| anyhow::anyhow!("--image-tolerance: {m}"))?;
-    let mut sequence: Box<dyn SensorSequence> = match (&args.sequence, &args.bag) {
+    let config = defaults_over(&assumed)?;
+    let mut sequence: Box<dyn SensorSequence> = match (&input.sequence, &input.bag) {
         (Some(dir), _) if RgbdSequence::layout_of(dir).is_some() => {
             let sequence = RgbdSequence::open(dir, &config.depth, config.sync.image_tolerance_s)?;
             println!("{}: RGB-D folder ({:?} layout)", dir.display(), sequence.layout);
@@ -502,7 +538,7 @@ fn run(args: &RunArgs) -> Result<()> {
         }
         (Some(dir), _) => Box::new(RecordedSequence::open_with(dir, &config.sync)?),
         (None, Some(bag)) => {
-            let options = BagOptions { depth: config.depth.clone(), ..args.topics.options(args.calib.clone()) };
+            let options = BagOptions { depth: config.depth.clone(), ..input.topics.options(input.calib.clone()) };
             let sequence = BagSequence::open(bag, &options, &config.sync)?;
             println!("{}: {}", bag.display(), sequence.recording.format);
             sequence.notes.iter().for_each(|n| println!("  {n}"));
@@ -510,7 +546,7 @@ fn run(args: &RunArgs) -> Result<()> {
         }
         (None, None) => anyhow::bail!("give --sequence DIR or --bag PATH"),
     };
-    let truth = match &args.gt {
+    let truth = match &input.gt {
         Some(gt) => {
             let (truth, _) = read_trajectory(gt)?;
             truth.check_increasing(gt)?;
@@ -518,21 +554,82 @@ fn run(args: &RunArgs) -> Result<()> {
         }
         None => None,
     };
+    if truth.is_some() || !faults.is_empty() {
+        sequence = Box::new(WithChanges { inner: sequence, truth, faults });
+    }
+    let sensors = SensorSet::of(&*sequence, camera);
+    let config = defaults_over(&sensors)?;
+    println!("sensors: {sensors}");
+    Ok((sequence, config, sensors))
+}
+
+fn autolabel(args: &AutolabelArgs) -> Result<()> {
+    use localize::autolabel::AutolabelConfig;
+    localize::autolabel::check_output_folder(&args.out)?;
+    let config: AutolabelConfig = match &args.autolabel_config {
+        Some(path) => {
+            let text = datasets::atomic::read_text(path)?;
+            serde_json::from_str(&text).with_context(|| format!("{}: not an autolabel config", path.display()))?
+        }
+        None => AutolabelConfig::default(),
+    };
+    config.validate().map_err(|e| anyhow::anyhow!("invalid autolabel setting: {e}"))?;
+    let beside = args.input.sequence.as_ref().map(|d| d.join("labels.json")).filter(|p| p.is_file());
+    let truth = match args.truth_labels.clone().or(beside) {
+        Some(path) => {
+            println!("true labels: {}", path.display());
+            Some(datasets::formats::read_coco(&path)?)
+        }
+        None => None,
+    };
+    let (sequence, localize_config, _) = open_input(&args.input, false, SensorFaults::default())?;
+    let progress = !std::env::var("CI").is_ok_and(|v| v == "true");
+    let (report, run) =
+        localize::autolabel::autolabel(&args.out, &*sequence, &localize_config, &config, truth.as_ref(), progress)?;
+    println!(
+        "{} images ({} train, {} test), {} labels: {:.1} per image (median {}, {} to {}); {} persistent corners of {} \
+         followed, {} labels hidden by the map{}",
+        report.images,
+        report.train_images,
+        report.test_images,
+        report.labels,
+        report.labels_per_image.mean,
+        report.labels_per_image.median,
+        report.labels_per_image.min,
+        report.labels_per_image.max,
+        report.persistent_corners,
+        report.tracks,
+        report.hidden,
+        if report.occlusion_checked { "" } else { " (no point map: occlusion not checked)" }
+    );
+    println!(
+        "expected pixel error (standard error of each corner over the scans, projected): median {:.2} px, 90% below {:.2} px",
+        report.expected_error_px.median, report.expected_error_px.p90
+    );
+    if let Some(s) = &report.against_truth {
+        println!(
+            "against the true labels ({} images, within {} px): precision {:.3}, recall {:.3} ({} of {} labels, {} true; \
+             median error {:.2} px)",
+            s.images, s.radius_px, s.precision, s.recall, s.matched, s.labels, s.true_labels, s.median_error_px
+        );
+    }
+    if let Some(m) = localize::run::metrics(&*sequence, &run)? {
+        println!("the run the labels came from: ATE {:.4} m over {} frames", m.fused.overall.ate_rmse, m.frames);
+    }
+    println!("wrote {} (train with: train --data {})", args.out.display(), args.out.display());
+    Ok(())
+}
+
+fn run(args: &RunArgs) -> Result<()> {
+    // Refused before the work, not after it.
+    localize::run::check_output_folder(&args.out)?;
     let faults = SensorFaults {
         lidar_gaps: args.lidar_gap.clone(),
         camera_stop_s: args.camera_stop,
         without_imu: args.without_imu,
         without_wheels: args.without_wheels,
     };
-    if truth.is_some() || !faults.is_empty() {
-        sequence = Box::new(WithChanges { inner: sequence, truth, faults });
-    }
-    let sensors = SensorSet::of(&*sequence, !args.without_camera);
-    config = defaults_over(&sensors)?;
-    if let Some(t) = args.image_tolerance {
-        config.sync.image_tolerance_s = t;
-    }
-    println!("sensors: {sensors}");
+    let (sequence, config, sensors) = open_input(&args.input, !args.without_camera, faults)?;
     let mut source = match &args.corners_from_labels {
         _ if args.without_camera => CornerSource::Off,
         Some(labels) => CornerSource::labels(labels, args.label_noise_px, args.seed)?,

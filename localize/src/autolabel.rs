@@ -1,0 +1,579 @@
+//! `localize autolabel`: corner labels for a recording's own images from its
+//! own 3D sensor. The recording is localized without the camera while the
+//! scans' 3D corners (three planes meeting) are followed in the world
+//! (`corner_tracks`); those seen again and again at one place from along
+//! the route are projected into every image at the camera's pose at that
+//! image's time, and kept where they are in front, inside the image and not
+//! hidden behind the mapped surfaces (`depth_buffer`). The images and
+//! labels are written as a `train --data` folder (COCO, the box size of
+//! `datagen`'s labels), with a report and pictures of the labels.
+
+use std::collections::{BTreeMap, HashMap};
+use std::path::Path;
+
+use datasets::bbox::BBox;
+use datasets::formats::{CocoAnnotation, CocoDataset, CocoImage, corner_categories};
+use datasets::math::Pose3;
+use datasets::world::labels::LabelConfig;
+use image::DynamicImage;
+use indicatif::{ProgressBar, ProgressStyle};
+use serde::{Deserialize, Serialize};
+
+use crate::corner_tracks::{CornerTrack, CornerTrackConfig};
+use crate::depth_buffer::DepthBuffer;
+use crate::error::Result;
+use crate::point_map::MapPoint;
+use crate::run::RunResult;
+use crate::sequence::{SensorSequence, truth_at};
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct AutolabelConfig {
+    /// Which scan corners count as the building's.
+    pub tracks: CornerTrackConfig,
+    /// Box size and farthest depth, as `datagen`'s labels.
+    pub labels: LabelConfig,
+    /// A corner is hidden when a mapped surface lies this much nearer on its
+    /// ray (metres, plus `occlusion_fraction` of its depth): a corner's own
+    /// surfaces lie at its depth, with the map's noise.
+    pub occlusion_margin_m: f64,
+    pub occlusion_fraction: f64,
+    /// Image pixels per cell of the depth buffer, and the radius of the disc
+    /// each map point covers (about the map's point spacing).
+    pub depth_cell_px: u32,
+    pub splat_m: f64,
+    /// The last this fraction of the images (in time) goes to `test.json`.
+    pub test_fraction: f64,
+    /// A label within this many pixels of a true corner matches it (when the
+    /// recording has true labels, as generated sequences do).
+    pub match_radius_px: f64,
+}
+
+impl Default for AutolabelConfig {
+    fn default() -> Self {
+        Self {
+            tracks: CornerTrackConfig::default(),
+            labels: LabelConfig::default(),
+            occlusion_margin_m: 0.3,
+            occlusion_fraction: 0.05,
+            depth_cell_px: 4,
+            splat_m: 0.1,
+            test_fraction: 0.2,
+            match_radius_px: 10.0,
+        }
+    }
+}
+
+impl AutolabelConfig {
+    pub fn validate(&self) -> std::result::Result<(), datasets::InvalidSetting> {
+        use datasets::InvalidSetting;
+        self.tracks.validate().map_err(|e| e.within("tracks"))?;
+        self.labels.validate().map_err(|e| e.within("labels"))?;
+        let check = |name: &str, v: f64, lo: f64, hi: f64| {
+            if (lo..=hi).contains(&v) {
+                Ok(())
+            } else {
+                Err(InvalidSetting::field(name, format!("{v} outside [{lo}, {hi}]")))
+            }
+        };
+        check("occlusion_margin_m", self.occlusion_margin_m, 0.0, 5.0)?;
+        check("occlusion_fraction", self.occlusion_fraction, 0.0, 0.5)?;
+        check("depth_cell_px", f64::from(self.depth_cell_px), 1.0, 64.0)?;
+        check("splat_m", self.splat_m, 0.001, 2.0)?;
+        check("test_fraction", self.test_fraction, 0.0, 0.9)?;
+        check("match_radius_px", self.match_radius_px, 0.5, 200.0)?;
+        Ok(())
+    }
+}
+
+/// One corner projected into one image.
+#[derive(Debug, Clone, PartialEq)]
+pub struct AutoLabel {
+    /// Index into the persistent tracks.
+    pub track: usize,
+    pub point: [f64; 2],
+    pub bbox: BBox,
+    pub depth_m: f64,
+    /// The standard error of the track's mean position seen from here:
+    /// focal length x spread / sqrt(scans) / depth.
+    pub expected_error_px: f64,
+}
+
+/// What became of the persistent corners in one image.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ImageLabels {
+    pub labels: Vec<AutoLabel>,
+    /// In front, inside the image and in range, but behind a mapped surface.
+    pub hidden: usize,
+}
+
+/// The persistent corners that `camera` sees at `world_from_camera`.
+pub fn label_image(
+    tracks: &[CornerTrack],
+    points: &[MapPoint],
+    camera: &datasets::camera::PinholeCamera,
+    world_from_camera: &Pose3,
+    config: &AutolabelConfig,
+) -> ImageLabels {
+    let camera_from_world = world_from_camera.inverse();
+    let max_depth = config.labels.max_depth_m;
+    let depth = (!points.is_empty()).then(|| {
+        DepthBuffer::render(points, camera, &camera_from_world, config.depth_cell_px, config.splat_m, max_depth)
+    });
+    let focal = 0.5 * (camera.fx + camera.fy);
+    let mut out = ImageLabels::default();
+    for (track, t) in tracks.iter().enumerate() {
+        let p = camera_from_world * nalgebra::Point3::from(t.position);
+        if p.z < 0.2 || p.z > max_depth {
+            continue;
+        }
+        let Some(uv) = camera.project(&p).filter(|&uv| camera.contains(uv)) else { continue };
+        let margin = config.occlusion_margin_m + config.occlusion_fraction * p.z;
+        if depth.as_ref().is_some_and(|d| d.at(uv) < p.z - margin) {
+            out.hidden += 1;
+            continue;
+        }
+        let size = config.labels.box_size_px;
+        let bbox = BBox::around(uv[0] as f32, uv[1] as f32, size).clip(camera.width as f32, camera.height as f32);
+        let expected_error_px = focal * t.spread_m / (t.scans as f64).sqrt() / p.z;
+        out.labels.push(AutoLabel { track, point: uv, bbox, depth_m: p.z, expected_error_px });
+    }
+    out
+}
+
+/// Labels against true labels, matched one to one within a pixel radius.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct LabelScore {
+    pub images: usize,
+    pub labels: usize,
+    pub true_labels: usize,
+    pub matched: usize,
+    pub precision: f64,
+    pub recall: f64,
+    pub radius_px: f64,
+    /// Median distance between a matched label and its true corner.
+    pub median_error_px: f64,
+}
+
+/// Greedy one-to-one matching, nearest pairs first.
+pub fn match_points(ours: &[[f64; 2]], truth: &[[f64; 2]], radius: f64) -> Vec<f64> {
+    let mut pairs: Vec<(f64, usize, usize)> = Vec::new();
+    for (i, a) in ours.iter().enumerate() {
+        for (j, b) in truth.iter().enumerate() {
+            let d = (a[0] - b[0]).hypot(a[1] - b[1]);
+            if d <= radius {
+                pairs.push((d, i, j));
+            }
+        }
+    }
+    pairs.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let (mut used_a, mut used_b) = (vec![false; ours.len()], vec![false; truth.len()]);
+    let mut distances = Vec::new();
+    for (d, i, j) in pairs {
+        if !used_a[i] && !used_b[j] {
+            used_a[i] = true;
+            used_b[j] = true;
+            distances.push(d);
+        }
+    }
+    distances
+}
+
+/// Scores the labels of each image (by name) against the true labels of
+/// the images of the same name in `truth`; images without true labels are
+/// left out.
+pub fn score_labels(labelled: &[(String, Vec<[f64; 2]>)], truth: &CocoDataset, radius: f64) -> LabelScore {
+    let stem = |f: &str| Path::new(f).file_stem().and_then(|s| s.to_str()).unwrap_or_default().to_string();
+    let ids: HashMap<String, u64> = truth.images.iter().map(|i| (stem(&i.file_name), i.id)).collect();
+    let mut points: HashMap<u64, Vec<[f64; 2]>> = HashMap::new();
+    for a in &truth.annotations {
+        let p = a.point.map_or([a.bbox[0] + a.bbox[2] / 2.0, a.bbox[1] + a.bbox[3] / 2.0], |p| p);
+        points.entry(a.image_id).or_default().push([f64::from(p[0]), f64::from(p[1])]);
+    }
+    let mut score = LabelScore { radius_px: radius, ..Default::default() };
+    let mut distances = Vec::new();
+    for (name, ours) in labelled {
+        let Some(id) = ids.get(name) else { continue };
+        let theirs = points.get(id).map_or(&[][..], Vec::as_slice);
+        score.images += 1;
+        score.labels += ours.len();
+        score.true_labels += theirs.len();
+        distances.extend(match_points(ours, theirs, radius));
+    }
+    score.matched = distances.len();
+    score.precision = if score.labels > 0 { score.matched as f64 / score.labels as f64 } else { 0.0 };
+    score.recall = if score.true_labels > 0 { score.matched as f64 / score.true_labels as f64 } else { 0.0 };
+    distances.sort_by(f64::total_cmp);
+    score.median_error_px = distances.get(distances.len() / 2).copied().unwrap_or(f64::NAN);
+    score
+}
+
+/// Summary numbers: mean, median, smallest and largest.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct Spread {
+    pub mean: f64,
+    pub median: f64,
+    pub p90: f64,
+    pub min: f64,
+    pub max: f64,
+}
+
+impl Spread {
+    pub fn of(values: &[f64]) -> Self {
+        if values.is_empty() {
+            return Self::default();
+        }
+        let mut v = values.to_vec();
+        v.sort_by(f64::total_cmp);
+        let at = |q: f64| v[((v.len() - 1) as f64 * q).round() as usize];
+        Self { mean: v.iter().sum::<f64>() / v.len() as f64, median: at(0.5), p90: at(0.9), min: v[0], max: at(1.0) }
+    }
+}
+
+/// `autolabel.json`.
+#[derive(Debug, Clone, Serialize)]
+pub struct AutolabelReport {
+    pub images: usize,
+    pub train_images: usize,
+    pub test_images: usize,
+    pub labels: usize,
+    pub labels_per_image: Spread,
+    /// Corners of the scans followed over the run, and those kept.
+    pub tracks: usize,
+    pub persistent_corners: usize,
+    /// Labels left out because a mapped surface hid them.
+    pub hidden: usize,
+    /// Whether hidden corners could be found (the run kept a point map).
+    pub occlusion_checked: bool,
+    /// Focal length x the standard error of the corner's position over the
+    /// scans / its depth, per label.
+    pub expected_error_px: Spread,
+    /// Against the recording's true labels, when it has them.
+    pub against_truth: Option<LabelScore>,
+    pub config: AutolabelConfig,
+}
+
+/// One labelled image.
+pub struct LabelledImage {
+    pub name: String,
+    pub stamp: f64,
+    pub image: DynamicImage,
+    pub labels: ImageLabels,
+}
+
+/// Labels every image of `sequence` whose time the run's trajectory covers
+/// (reading the recording a second time: the run left the images alone).
+pub fn label_sequence(
+    sequence: &dyn SensorSequence,
+    run: &RunResult,
+    config: &AutolabelConfig,
+    show_progress: bool,
+    mut keep: impl FnMut(LabelledImage) -> Result<()>,
+) -> Result<()> {
+    let tracks = run.corner_tracks.as_ref().map(|t| t.persistent()).unwrap_or_default();
+    let calibration = sequence.calibration();
+    let robot_from_camera = calibration.robot_from_camera();
+    let trajectory = &run.trajectory;
+    let (Some(&first), Some(&last)) = (trajectory.stamps.first(), trajectory.stamps.last()) else {
+        return Ok(());
+    };
+    let bar = if show_progress { ProgressBar::new(trajectory.len() as u64) } else { ProgressBar::hidden() };
+    bar.set_style(
+        ProgressStyle::with_template("{prefix} [{elapsed_precise}] {bar:30} {pos}/{len} frames").expect("static"),
+    );
+    bar.set_prefix("autolabel");
+    let mut seen = std::collections::HashSet::new();
+    // Images within half a scan period of the trajectory's ends still take its end poses.
+    let slack = if trajectory.len() > 1 { (last - first) / (trajectory.len() - 1) as f64 / 2.0 } else { 0.0 };
+    sequence.for_each_frame(&mut |frame| {
+        bar.inc(1);
+        let Ok(image) = frame.image else { return Ok(()) };
+        let Ok(pixels) = image.image else { return Ok(()) };
+        if image.stamp < first - slack || image.stamp > last + slack || !seen.insert(image.name.clone()) {
+            return Ok(());
+        }
+        let world_from_camera = truth_at(trajectory, image.stamp) * robot_from_camera;
+        let labels = label_image(&tracks, &run.point_map, &calibration.camera, &world_from_camera, config);
+        keep(LabelledImage { name: image.name, stamp: image.stamp, image: pixels, labels })
+    })?;
+    bar.finish_and_clear();
+    Ok(())
+}
+
+/// COCO annotations of one image's labels.
+pub fn annotations(labels: &[AutoLabel], image_id: u64, next_id: &mut u64) -> Vec<CocoAnnotation> {
+    labels
+        .iter()
+        .map(|l| {
+            *next_id += 1;
+            CocoAnnotation {
+                id: *next_id,
+                image_id,
+                category_id: 1,
+                bbox: l.bbox.to_xywh(),
+                area: l.bbox.area(),
+                iscrowd: 0,
+                corner_type: None,
+                point: Some([l.point[0] as f32, l.point[1] as f32]),
+            }
+        })
+        .collect()
+}
+
+/// The train and test splits of the labelled images, in time order: the
+/// last `test_fraction` of them is the test split.
+pub fn splits(entries: &[(CocoImage, Vec<AutoLabel>)], test_fraction: f64) -> (CocoDataset, CocoDataset) {
+    let n = entries.len();
+    let test = ((n as f64 * test_fraction).round() as usize).min(n.saturating_sub(1));
+    let mut sets = [
+        CocoDataset { categories: corner_categories(), ..Default::default() },
+        CocoDataset { categories: corner_categories(), ..Default::default() },
+    ];
+    let mut next_id = 0;
+    for (k, (image, labels)) in entries.iter().enumerate() {
+        let set = &mut sets[usize::from(k >= n - test)];
+        set.annotations.extend(annotations(labels, image.id, &mut next_id));
+        set.images.push(image.clone());
+    }
+    let [train, test] = sets;
+    (train, test)
+}
+
+/// The labels drawn on the image: boxes and centres in green.
+pub fn draw(image: &DynamicImage, labels: &[AutoLabel]) -> image::RgbImage {
+    let mut out = image.to_rgb8();
+    let colour = image::Rgb([40, 220, 60]);
+    for l in labels {
+        let b = l.bbox;
+        let rect = imageproc::rect::Rect::at(b.x1 as i32, b.y1 as i32)
+            .of_size(b.width().max(1.0) as u32, b.height().max(1.0) as u32);
+        imageproc::drawing::draw_hollow_rect_mut(&mut out, rect, colour);
+        imageproc::drawing::draw_filled_circle_mut(&mut out, (l.point[0] as i32, l.point[1] as i32), 3, colour);
+    }
+    out
+}
+
+/// Writes the `train --data` folder `out`: `images/`, `train.json`,
+/// `test.json`, `autolabel.json`, `preview/` (a few images with their labels
+/// drawn) and `corners.ply` (the persistent corners); returns the report.
+pub fn write_autolabels(
+    out: &Path,
+    sequence: &dyn SensorSequence,
+    run: &RunResult,
+    config: &AutolabelConfig,
+    truth: Option<&CocoDataset>,
+    show_progress: bool,
+) -> Result<AutolabelReport> {
+    config.validate().map_err(|e| e.within("autolabel"))?;
+    let tracks = run.corner_tracks.as_ref().map(|t| t.persistent()).unwrap_or_default();
+    let camera = &sequence.calibration().camera;
+    let mut report = None;
+    datasets::atomic::write_dir(out, |dir| -> Result<()> {
+        let mut entries: Vec<(CocoImage, Vec<AutoLabel>)> = Vec::new();
+        let mut hidden = 0;
+        let mut previews: BTreeMap<usize, (String, DynamicImage)> = BTreeMap::new();
+        label_sequence(sequence, run, config, show_progress, |l| {
+            let file_name = format!("images/{}.png", l.name);
+            datasets::atomic::write_image(&dir.join(&file_name), &l.image)?;
+            hidden += l.labels.hidden;
+            let id = entries.len() as u64 + 1;
+            // Every 25th image is kept for the pictures (at most 8 of them, spread over the run below).
+            if entries.len() % 25 == 0 {
+                previews
+                    .insert(entries.len(), (l.name.clone(), DynamicImage::ImageRgb8(draw(&l.image, &l.labels.labels))));
+            }
+            entries.push((CocoImage { id, file_name, width: camera.width, height: camera.height }, l.labels.labels));
+            Ok(())
+        })?;
+        if entries.is_empty() {
+            return Err(crate::error::LocalizeError::Recording(
+                "no image of the recording falls within the localized scans' times: nothing to label".into(),
+            ));
+        }
+        let (train, test) = splits(&entries, config.test_fraction);
+        datasets::formats::write_coco(&dir.join("train.json"), &train)?;
+        datasets::formats::write_coco(&dir.join("test.json"), &test)?;
+        let step = previews.len().div_ceil(8).max(1);
+        for (name, picture) in previews.values().step_by(step) {
+            datasets::atomic::write_image(&dir.join("preview").join(format!("{name}.png")), picture)?;
+        }
+        datasets::atomic::write_bytes(&dir.join("corners.ply"), &corners_ply(&tracks))?;
+        let counts: Vec<f64> = entries.iter().map(|(_, l)| l.len() as f64).collect();
+        let errors: Vec<f64> = entries.iter().flat_map(|(_, l)| l.iter().map(|a| a.expected_error_px)).collect();
+        let against_truth = truth.map(|truth| {
+            let labelled: Vec<(String, Vec<[f64; 2]>)> = entries
+                .iter()
+                .map(|(image, labels)| {
+                    let name = Path::new(&image.file_name).file_stem().and_then(|s| s.to_str()).unwrap_or_default();
+                    (name.to_string(), labels.iter().map(|l| l.point).collect())
+                })
+                .collect();
+            score_labels(&labelled, truth, config.match_radius_px)
+        });
+        let r = AutolabelReport {
+            images: entries.len(),
+            train_images: train.images.len(),
+            test_images: test.images.len(),
+            labels: errors.len(),
+            labels_per_image: Spread::of(&counts),
+            tracks: run.corner_tracks.as_ref().map_or(0, |t| t.tracks.len()),
+            persistent_corners: tracks.len(),
+            hidden,
+            occlusion_checked: !run.point_map.is_empty(),
+            expected_error_px: Spread::of(&errors),
+            against_truth,
+            config: config.clone(),
+        };
+        datasets::atomic::write_json(&dir.join("autolabel.json"), &r)?;
+        report = Some(r);
+        Ok(())
+    })?;
+    Ok(report.expect("written"))
+}
+
+/// Refuses an output folder that holds anything but an earlier
+/// `autolabel`'s output (which is replaced whole), before the work.
+pub fn check_output_folder(out: &Path) -> Result<()> {
+    if out.exists() && !out.is_dir() {
+        return Err(datasets::DataError::invalid(out, "the output is not a folder").into());
+    }
+    datasets::atomic::check_writable(out)?;
+    let Ok(mut entries) = std::fs::read_dir(out) else { return Ok(()) };
+    if entries.next().is_some() && !out.join("autolabel.json").is_file() {
+        return Err(datasets::DataError::invalid(
+            out,
+            "holds files that are not an earlier autolabel's output: give an empty or new folder",
+        )
+        .into());
+    }
+    Ok(())
+}
+
+/// Localizes `sequence` without the camera, following its scans' corners,
+/// and writes the labels of its images into `out` (`write_autolabels`); the
+/// run itself goes to `out/run` (trajectory, map, and metrics with ground truth).
+pub fn autolabel(
+    out: &Path,
+    sequence: &dyn SensorSequence,
+    localize: &crate::config::LocalizeConfig,
+    config: &AutolabelConfig,
+    truth: Option<&CocoDataset>,
+    show_progress: bool,
+) -> Result<(AutolabelReport, RunResult)> {
+    config.validate().map_err(|e| e.within("autolabel"))?;
+    check_output_folder(out)?;
+    let options = crate::run::RunOptions { show_progress, track_corners: Some(config.tracks.clone()), map: None };
+    let run = crate::run::run_with(sequence, &mut crate::corner_source::CornerSource::Off, localize, options)?;
+    let report = write_autolabels(out, sequence, &run, config, truth, show_progress)?;
+    let truth_trajectory = crate::run::truth_in_run_frame(sequence, &run);
+    let metrics = crate::run::metrics_against(sequence, &run, truth_trajectory.as_ref())?;
+    crate::run::write_outputs(&out.join("run"), localize, &run, truth_trajectory.as_ref(), metrics.as_ref())?;
+    Ok((report, run))
+}
+
+/// The persistent corners as a PLY point cloud (red), for a viewer beside the run's map.ply.
+fn corners_ply(tracks: &[CornerTrack]) -> Vec<u8> {
+    let mut out = format!(
+        "ply\nformat ascii 1.0\ncomment corner-fusion autolabel: persistent 3D corners\nelement vertex {}\n\
+         property float x\nproperty float y\nproperty float z\nproperty uchar red\nproperty uchar green\n\
+         property uchar blue\nend_header\n",
+        tracks.len()
+    );
+    for t in tracks {
+        out.push_str(&format!("{} {} {} 230 30 30\n", t.position.x as f32, t.position.y as f32, t.position.z as f32));
+    }
+    out.into_bytes()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::corner_tracks::{CornerTrackConfig, CornerTracks};
+    use datasets::math::Vec3;
+
+    fn camera() -> datasets::camera::PinholeCamera {
+        datasets::camera::PinholeCamera { width: 640, height: 480, fx: 500.0, fy: 500.0, cx: 319.5, cy: 239.5 }
+    }
+
+    /// Tracks of the given world points, each seen 6 times along 1 m of route.
+    fn tracks_of(points: &[Vec3]) -> Vec<CornerTrack> {
+        let mut tracks = CornerTracks::new(CornerTrackConfig::default());
+        for k in 0..6 {
+            let pose =
+                Pose3::from_parts(Vec3::new(0.2 * k as f64, 0.0, 0.0).into(), nalgebra::UnitQuaternion::identity());
+            let in_robot: Vec<Vec3> =
+                points.iter().map(|p| (pose.inverse() * nalgebra::Point3::from(*p)).coords).collect();
+            tracks.observe(k as f64, &pose, &in_robot);
+        }
+        tracks.persistent()
+    }
+
+    #[test]
+    fn corners_project_where_the_camera_sees_them_and_a_wall_hides_the_one_behind_it() {
+        // Camera at the origin looking along +z. A corner 4 m ahead, 1 m right
+        // and 0.5 m down; one straight ahead at 6 m behind a wall at 3 m; one
+        // behind the camera; one outside the image.
+        let corners =
+            [Vec3::new(1.0, 0.5, 4.0), Vec3::new(0.0, 0.0, 6.0), Vec3::new(0.0, 0.0, -3.0), Vec3::new(20.0, 0.0, 4.0)];
+        let tracks = tracks_of(&corners);
+        assert_eq!(tracks.len(), 4);
+        let wall: Vec<MapPoint> = (-10..=10)
+            .flat_map(|i| (-10..=10).map(move |j| (i, j)))
+            .map(|(i, j)| MapPoint { position: Vec3::new(0.05 * i as f64, 0.05 * j as f64, 3.0), normal: -Vec3::z() })
+            .collect();
+        let config = AutolabelConfig::default();
+        let seen = label_image(&tracks, &wall, &camera(), &Pose3::identity(), &config);
+        assert_eq!(seen.labels.len(), 1, "{seen:?}");
+        assert_eq!(seen.hidden, 1);
+        let l = &seen.labels[0];
+        // f x / z = 125 px and f y / z = 62.5 px from the centre, in the camera's
+        // pixel-corner convention (the centre of pixel 0 at 0.5).
+        assert!((l.point[0] - 445.0).abs() < 1e-9 && (l.point[1] - 302.5).abs() < 1e-9, "{l:?}");
+        assert!((l.depth_m - 4.0).abs() < 1e-12);
+        assert_eq!(l.bbox.width(), 96.0);
+        // Without a point map nothing is hidden.
+        let unmapped = label_image(&tracks, &[], &camera(), &Pose3::identity(), &config);
+        assert_eq!((unmapped.labels.len(), unmapped.hidden), (2, 0));
+    }
+
+    #[test]
+    fn matching_is_one_to_one_nearest_first_within_the_radius() {
+        let ours = [[100.0, 100.0], [104.0, 100.0], [300.0, 300.0]];
+        let truth = [[103.0, 100.0], [200.0, 200.0]];
+        // (104,100) is nearest to the one true corner; (100,100) then has none within 10 px.
+        let d = match_points(&ours, &truth, 10.0);
+        assert_eq!(d, vec![1.0]);
+        let mut set = CocoDataset::default();
+        set.images.push(CocoImage { id: 7, file_name: "rgb/a.png".into(), width: 640, height: 480 });
+        for (k, p) in truth.iter().enumerate() {
+            set.annotations.push(CocoAnnotation {
+                id: k as u64 + 1,
+                image_id: 7,
+                category_id: 1,
+                bbox: [0.0, 0.0, 1.0, 1.0],
+                area: 1.0,
+                iscrowd: 0,
+                corner_type: None,
+                point: Some([p[0] as f32, p[1] as f32]),
+            });
+        }
+        let labelled = vec![("a".to_string(), ours.to_vec()), ("unknown".to_string(), vec![[1.0, 1.0]])];
+        let s = score_labels(&labelled, &set, 10.0);
+        assert_eq!((s.images, s.labels, s.true_labels, s.matched), (1, 3, 2, 1));
+        assert!((s.precision - 1.0 / 3.0).abs() < 1e-12 && (s.recall - 0.5).abs() < 1e-12);
+        assert_eq!(s.median_error_px, 1.0);
+    }
+
+    #[test]
+    fn the_test_split_is_the_end_of_the_run() {
+        let entries: Vec<(CocoImage, Vec<AutoLabel>)> = (1..=10)
+            .map(|id| (CocoImage { id, file_name: format!("images/{id}.png"), width: 10, height: 10 }, Vec::new()))
+            .collect();
+        let (train, test) = splits(&entries, 0.2);
+        assert_eq!(train.images.iter().map(|i| i.id).collect::<Vec<_>>(), (1..=8).collect::<Vec<_>>());
+        assert_eq!(test.images.iter().map(|i| i.id).collect::<Vec<_>>(), vec![9, 10]);
+        // One image stays in training whatever the fraction.
+        let (train, test) = splits(&entries[..1], 0.9);
+        assert_eq!((train.images.len(), test.images.len()), (1, 0));
+    }
+}
