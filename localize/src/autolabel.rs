@@ -13,7 +13,7 @@ use std::path::Path;
 
 use datasets::bbox::BBox;
 use datasets::formats::{CocoAnnotation, CocoDataset, CocoImage, corner_categories};
-use datasets::math::Pose3;
+use datasets::math::{Pose3, Vec3};
 use datasets::world::labels::LabelConfig;
 use image::DynamicImage;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -22,6 +22,7 @@ use serde::{Deserialize, Serialize};
 use crate::corner_tracks::{CornerTrack, CornerTrackConfig};
 use crate::depth_buffer::DepthBuffer;
 use crate::error::Result;
+use crate::map_corners::{MapCornerConfig, map_corners};
 use crate::point_map::MapPoint;
 use crate::run::RunResult;
 use crate::sequence::{SensorSequence, truth_at};
@@ -31,6 +32,8 @@ use crate::sequence::{SensorSequence, truth_at};
 pub struct AutolabelConfig {
     /// Which scan corners count as the building's.
     pub tracks: CornerTrackConfig,
+    /// Corners found in the run's point map besides them.
+    pub map_corners: MapCornerConfig,
     /// Box size and farthest depth, as `datagen`'s labels.
     pub labels: LabelConfig,
     /// A corner is hidden when a mapped surface lies this much nearer on its
@@ -53,6 +56,7 @@ impl Default for AutolabelConfig {
     fn default() -> Self {
         Self {
             tracks: CornerTrackConfig::default(),
+            map_corners: MapCornerConfig::default(),
             labels: LabelConfig::default(),
             occlusion_margin_m: 0.3,
             occlusion_fraction: 0.05,
@@ -68,6 +72,7 @@ impl AutolabelConfig {
     pub fn validate(&self) -> std::result::Result<(), datasets::InvalidSetting> {
         use datasets::InvalidSetting;
         self.tracks.validate().map_err(|e| e.within("tracks"))?;
+        self.map_corners.validate().map_err(|e| e.within("map_corners"))?;
         self.labels.validate().map_err(|e| e.within("labels"))?;
         let check = |name: &str, v: f64, lo: f64, hi: f64| {
             if (lo..=hi).contains(&v) {
@@ -86,16 +91,43 @@ impl AutolabelConfig {
     }
 }
 
+/// A 3D corner to label, and the standard error of its position.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LabelCorner {
+    pub position: Vec3,
+    pub sigma_m: f64,
+}
+
+/// The corners to label: the scans' persistent corners, then the point
+/// map's corners farther than the tracks' gate from all of them.
+pub fn label_corners(run: &RunResult, config: &AutolabelConfig) -> (Vec<LabelCorner>, usize) {
+    let tracks: Vec<CornerTrack> = run.corner_tracks.as_ref().map(|t| t.persistent()).unwrap_or_default();
+    let mut corners: Vec<LabelCorner> = tracks
+        .iter()
+        .map(|t| LabelCorner { position: t.position, sigma_m: t.spread_m / (t.scans as f64).sqrt() })
+        .collect();
+    let mut from_map = 0;
+    if config.map_corners.enabled {
+        for c in map_corners(&run.point_map, &config.map_corners) {
+            if corners.iter().all(|k| (k.position - c.position).norm() > config.tracks.gate_m) {
+                corners.push(LabelCorner { position: c.position, sigma_m: c.sigma_m });
+                from_map += 1;
+            }
+        }
+    }
+    (corners, from_map)
+}
+
 /// One corner projected into one image.
 #[derive(Debug, Clone, PartialEq)]
 pub struct AutoLabel {
-    /// Index into the persistent tracks.
-    pub track: usize,
+    /// Index into the corners labelled.
+    pub corner: usize,
     pub point: [f64; 2],
     pub bbox: BBox,
     pub depth_m: f64,
-    /// The standard error of the track's mean position seen from here:
-    /// focal length x spread / sqrt(scans) / depth.
+    /// The standard error of the corner's position seen from here:
+    /// focal length x sigma / depth.
     pub expected_error_px: f64,
 }
 
@@ -107,9 +139,9 @@ pub struct ImageLabels {
     pub hidden: usize,
 }
 
-/// The persistent corners that `camera` sees at `world_from_camera`.
+/// The corners that `camera` sees at `world_from_camera`.
 pub fn label_image(
-    tracks: &[CornerTrack],
+    corners: &[LabelCorner],
     points: &[MapPoint],
     camera: &datasets::camera::PinholeCamera,
     world_from_camera: &Pose3,
@@ -122,7 +154,7 @@ pub fn label_image(
     });
     let focal = 0.5 * (camera.fx + camera.fy);
     let mut out = ImageLabels::default();
-    for (track, t) in tracks.iter().enumerate() {
+    for (corner, t) in corners.iter().enumerate() {
         let p = camera_from_world * nalgebra::Point3::from(t.position);
         if p.z < 0.2 || p.z > max_depth {
             continue;
@@ -135,8 +167,8 @@ pub fn label_image(
         }
         let size = config.labels.box_size_px;
         let bbox = BBox::around(uv[0] as f32, uv[1] as f32, size).clip(camera.width as f32, camera.height as f32);
-        let expected_error_px = focal * t.spread_m / (t.scans as f64).sqrt() / p.z;
-        out.labels.push(AutoLabel { track, point: uv, bbox, depth_m: p.z, expected_error_px });
+        let expected_error_px = focal * t.sigma_m / p.z;
+        out.labels.push(AutoLabel { corner, point: uv, bbox, depth_m: p.z, expected_error_px });
     }
     out
 }
@@ -238,9 +270,11 @@ pub struct AutolabelReport {
     pub test_images: usize,
     pub labels: usize,
     pub labels_per_image: Spread,
-    /// Corners of the scans followed over the run, and those kept.
+    /// Corners of the scans followed over the run, those kept, and the
+    /// corners of the point map added to them.
     pub tracks: usize,
     pub persistent_corners: usize,
+    pub map_corners: usize,
     /// Labels left out because a mapped surface hid them.
     pub hidden: usize,
     /// Whether hidden corners could be found (the run kept a point map).
@@ -266,11 +300,11 @@ pub struct LabelledImage {
 pub fn label_sequence(
     sequence: &dyn SensorSequence,
     run: &RunResult,
+    corners: &[LabelCorner],
     config: &AutolabelConfig,
     show_progress: bool,
     mut keep: impl FnMut(LabelledImage) -> Result<()>,
 ) -> Result<()> {
-    let tracks = run.corner_tracks.as_ref().map(|t| t.persistent()).unwrap_or_default();
     let calibration = sequence.calibration();
     let robot_from_camera = calibration.robot_from_camera();
     let trajectory = &run.trajectory;
@@ -293,7 +327,7 @@ pub fn label_sequence(
             return Ok(());
         }
         let world_from_camera = truth_at(trajectory, image.stamp) * robot_from_camera;
-        let labels = label_image(&tracks, &run.point_map, &calibration.camera, &world_from_camera, config);
+        let labels = label_image(corners, &run.point_map, &calibration.camera, &world_from_camera, config);
         keep(LabelledImage { name: image.name, stamp: image.stamp, image: pixels, labels })
     })?;
     bar.finish_and_clear();
@@ -365,14 +399,14 @@ pub fn write_autolabels(
     show_progress: bool,
 ) -> Result<AutolabelReport> {
     config.validate().map_err(|e| e.within("autolabel"))?;
-    let tracks = run.corner_tracks.as_ref().map(|t| t.persistent()).unwrap_or_default();
+    let (corners, from_map) = label_corners(run, config);
     let camera = &sequence.calibration().camera;
     let mut report = None;
     datasets::atomic::write_dir(out, |dir| -> Result<()> {
         let mut entries: Vec<(CocoImage, Vec<AutoLabel>)> = Vec::new();
         let mut hidden = 0;
         let mut previews: BTreeMap<usize, (String, DynamicImage)> = BTreeMap::new();
-        label_sequence(sequence, run, config, show_progress, |l| {
+        label_sequence(sequence, run, &corners, config, show_progress, |l| {
             let file_name = format!("images/{}.png", l.name);
             datasets::atomic::write_image(&dir.join(&file_name), &l.image)?;
             hidden += l.labels.hidden;
@@ -397,7 +431,7 @@ pub fn write_autolabels(
         for (name, picture) in previews.values().step_by(step) {
             datasets::atomic::write_image(&dir.join("preview").join(format!("{name}.png")), picture)?;
         }
-        datasets::atomic::write_bytes(&dir.join("corners.ply"), &corners_ply(&tracks))?;
+        datasets::atomic::write_bytes(&dir.join("corners.ply"), &corners_ply(&corners))?;
         let counts: Vec<f64> = entries.iter().map(|(_, l)| l.len() as f64).collect();
         let errors: Vec<f64> = entries.iter().flat_map(|(_, l)| l.iter().map(|a| a.expected_error_px)).collect();
         let against_truth = truth.map(|truth| {
@@ -417,7 +451,8 @@ pub fn write_autolabels(
             labels: errors.len(),
             labels_per_image: Spread::of(&counts),
             tracks: run.corner_tracks.as_ref().map_or(0, |t| t.tracks.len()),
-            persistent_corners: tracks.len(),
+            persistent_corners: corners.len() - from_map,
+            map_corners: from_map,
             hidden,
             occlusion_checked: !run.point_map.is_empty(),
             expected_error_px: Spread::of(&errors),
@@ -472,14 +507,14 @@ pub fn autolabel(
 }
 
 /// The persistent corners as a PLY point cloud (red), for a viewer beside the run's map.ply.
-fn corners_ply(tracks: &[CornerTrack]) -> Vec<u8> {
+fn corners_ply(corners: &[LabelCorner]) -> Vec<u8> {
     let mut out = format!(
         "ply\nformat ascii 1.0\ncomment corner-fusion autolabel: persistent 3D corners\nelement vertex {}\n\
          property float x\nproperty float y\nproperty float z\nproperty uchar red\nproperty uchar green\n\
          property uchar blue\nend_header\n",
-        tracks.len()
+        corners.len()
     );
-    for t in tracks {
+    for t in corners {
         out.push_str(&format!("{} {} {} 230 30 30\n", t.position.x as f32, t.position.y as f32, t.position.z as f32));
     }
     out.into_bytes()
@@ -489,14 +524,13 @@ fn corners_ply(tracks: &[CornerTrack]) -> Vec<u8> {
 mod tests {
     use super::*;
     use crate::corner_tracks::{CornerTrackConfig, CornerTracks};
-    use datasets::math::Vec3;
 
     fn camera() -> datasets::camera::PinholeCamera {
         datasets::camera::PinholeCamera { width: 640, height: 480, fx: 500.0, fy: 500.0, cx: 319.5, cy: 239.5 }
     }
 
     /// Tracks of the given world points, each seen 6 times along 1 m of route.
-    fn tracks_of(points: &[Vec3]) -> Vec<CornerTrack> {
+    fn tracks_of(points: &[Vec3]) -> Vec<LabelCorner> {
         let mut tracks = CornerTracks::new(CornerTrackConfig::default());
         for k in 0..6 {
             let pose =
@@ -505,7 +539,7 @@ mod tests {
                 points.iter().map(|p| (pose.inverse() * nalgebra::Point3::from(*p)).coords).collect();
             tracks.observe(k as f64, &pose, &in_robot);
         }
-        tracks.persistent()
+        tracks.persistent().iter().map(|t| LabelCorner { position: t.position, sigma_m: 0.0 }).collect()
     }
 
     #[test]

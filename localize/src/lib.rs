@@ -24,6 +24,7 @@ pub mod image_edges;
 pub mod landmarks;
 pub mod level_floor;
 pub mod levels;
+pub mod map_corners;
 pub mod map_output;
 pub mod motion;
 pub mod normals;

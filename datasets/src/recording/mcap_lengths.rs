@@ -50,7 +50,19 @@ pub fn check(path: &Path, bytes: &[u8]) -> Result<()> {
     if bytes.len() < MAGIC {
         return Ok(()); // The reader says what is wrong with it.
     }
-    check_records(path, bytes, MAGIC, bytes.len(), 0)
+    check_records(path, bytes, MAGIC, bytes.len(), 0)?;
+    // The summary is read from where the footer says it starts, whatever
+    // the walk from the start reached: it is walked from there too.
+    const FOOTER: usize = 1 + 8 + 20;
+    if let Some(footer) = bytes.len().checked_sub(MAGIC + FOOTER).filter(|&f| f >= MAGIC && bytes[f] == 0x02) {
+        let start = u64::from_le_bytes(bytes[footer + 9..footer + 17].try_into().expect("8 bytes"));
+        if let Ok(start) = usize::try_from(start)
+            && (MAGIC..footer).contains(&start)
+        {
+            check_records(path, bytes, start, footer, 0)?;
+        }
+    }
+    Ok(())
 }
 
 /// Checks the records in `bytes[from..to]`; a record cut off by `to` is
@@ -162,11 +174,14 @@ mod tests {
     #[test]
     fn a_whole_file_passes_and_each_damaged_length_is_named_before_any_allocation() {
         let path = std::path::Path::new("lengths.mcap");
+        let mut summary_hits = 0;
         for chunked in [false, true] {
             let bytes = written(chunked);
             super::check(path, &bytes).unwrap();
             // Every place that spells a length of the schema's name, the topic
-            // or the metadata value, set to 2^31: each is refused by name.
+            // or the metadata value, set to 2^31: each is refused by name,
+            // also when the walk from the start stops early (a damaged
+            // record length before the summary).
             for needle in [&b"sensor_msgs/msg/Imu"[..], b"/imu", b"reliable"] {
                 let hits: Vec<usize> =
                     bytes.windows(needle.len()).enumerate().filter(|(_, w)| *w == needle).map(|(i, _)| i).collect();
@@ -180,8 +195,16 @@ mod tests {
                         "chunked {chunked}, {}: {error}",
                         String::from_utf8_lossy(needle)
                     );
+                    // The header record's length made to run past the end: the walk stops there.
+                    damaged[9..17].copy_from_slice(&u64::MAX.to_le_bytes());
+                    if at > bytes.len() / 2 {
+                        summary_hits += 1;
+                        let error = super::check(path, &damaged).unwrap_err().to_string();
+                        assert!(error.contains("declares 2147483648 bytes"), "{error}");
+                    }
                 }
             }
         }
+        assert!(summary_hits >= 4, "{summary_hits} damaged lengths in the summary section");
     }
 }

@@ -588,7 +588,7 @@ fn autolabel(args: &AutolabelArgs) -> Result<()> {
         localize::autolabel::autolabel(&args.out, &*sequence, &localize_config, &config, truth.as_ref(), progress)?;
     println!(
         "{} images ({} train, {} test), {} labels: {:.1} per image (median {}, {} to {}); {} persistent corners of {} \
-         followed, {} labels hidden by the map{}",
+         followed over the scans and {} more in the map, {} labels hidden by the map{}",
         report.images,
         report.train_images,
         report.test_images,
@@ -599,11 +599,12 @@ fn autolabel(args: &AutolabelArgs) -> Result<()> {
         report.labels_per_image.max,
         report.persistent_corners,
         report.tracks,
+        report.map_corners,
         report.hidden,
         if report.occlusion_checked { "" } else { " (no point map: occlusion not checked)" }
     );
     println!(
-        "expected pixel error (standard error of each corner over the scans, projected): median {:.2} px, 90% below {:.2} px",
+        "expected pixel error (standard error of each corner's position, projected): median {:.2} px, 90% below {:.2} px",
         report.expected_error_px.median, report.expected_error_px.p90
     );
     if let Some(s) = &report.against_truth {
