@@ -1,5 +1,5 @@
 //! `localize autolabel`: corner labels for a recording's own images from its
-//! own 3D sensor. The recording is localized without the camera while the
+//! own 3D sensor. The recording is localized without the detector while the
 //! scans' 3D corners (three planes meeting) are followed in the world
 //! (`corner_tracks`); those seen again and again at one place from along
 //! the route are projected into every image at the camera's pose at that
@@ -412,7 +412,7 @@ pub fn write_autolabels(
             hidden += l.labels.hidden;
             let id = entries.len() as u64 + 1;
             // Every 25th image is kept for the pictures (at most 8 of them, spread over the run below).
-            if entries.len() % 25 == 0 {
+            if entries.len().is_multiple_of(25) {
                 previews
                     .insert(entries.len(), (l.name.clone(), DynamicImage::ImageRgb8(draw(&l.image, &l.labels.labels))));
             }
@@ -484,7 +484,7 @@ pub fn check_output_folder(out: &Path) -> Result<()> {
     Ok(())
 }
 
-/// Localizes `sequence` without the camera, following its scans' corners,
+/// Localizes `sequence` without the detector, following its scans' corners,
 /// and writes the labels of its images into `out` (`write_autolabels`); the
 /// run itself goes to `out/run` (trajectory, map, and metrics with ground truth).
 pub fn autolabel(
@@ -497,7 +497,14 @@ pub fn autolabel(
 ) -> Result<(AutolabelReport, RunResult)> {
     config.validate().map_err(|e| e.within("autolabel"))?;
     check_output_folder(out)?;
-    let options = crate::run::RunOptions { show_progress, track_corners: Some(config.tracks.clone()), map: None };
+    // The detector is left out; the image's edges lifted through a depth
+    // image (RGB-D) still hold the registration, as in `localize run`.
+    let options = crate::run::RunOptions {
+        show_progress,
+        track_corners: Some(config.tracks.clone()),
+        keep_image_edges: true,
+        map: None,
+    };
     let run = crate::run::run_with(sequence, &mut crate::corner_source::CornerSource::Off, localize, options)?;
     let report = write_autolabels(out, sequence, &run, config, truth, show_progress)?;
     let truth_trajectory = crate::run::truth_in_run_frame(sequence, &run);

@@ -56,6 +56,9 @@ pub struct RunOptions {
     pub show_progress: bool,
     /// Follow the scans' 3D corners in the world (`corner_tracks`), for `autolabel`.
     pub track_corners: Option<CornerTrackConfig>,
+    /// Keep the image's edges lifted through the depth (`image_edges`) when
+    /// the corner source is off: the detector is left out, not the camera.
+    pub keep_image_edges: bool,
 }
 
 /// A map to localize in, and optionally where in it the sequence starts
@@ -84,7 +87,7 @@ pub fn run_sequence_in_map(
     map: Option<MapStart>,
     show_progress: bool,
 ) -> Result<RunResult> {
-    run_with(sequence, source, config, RunOptions { map, show_progress, track_corners: None })
+    run_with(sequence, source, config, RunOptions { map, show_progress, ..RunOptions::default() })
 }
 
 /// A run with everything `RunOptions` can ask for.
@@ -94,7 +97,7 @@ pub fn run_with(
     config: &LocalizeConfig,
     options: RunOptions,
 ) -> Result<RunResult> {
-    let RunOptions { map, show_progress, track_corners } = options;
+    let RunOptions { map, show_progress, track_corners, keep_image_edges } = options;
     config.validate()?;
     if let Some(c) = &track_corners {
         c.validate().map_err(|e| e.within("corner_tracks"))?;
@@ -195,7 +198,7 @@ pub fn run_with(
             result.placement = Some(placement);
         }
         // The image's edges are the camera's too: left out with it.
-        let edges = if camera_off { Vec::new() } else { edges };
+        let edges = if camera_off && !keep_image_edges { Vec::new() } else { edges };
         let camera = CameraCorners { pixels, lidar_from_camera, detect_ms, edges };
         let scan_corners = match (&result.corner_tracks, &geometry) {
             (Some(t), Ok(g)) => structural_corners(g, &calibration.robot_from_lidar, t.config.min_plane_extent_m),

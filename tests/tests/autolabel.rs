@@ -1,4 +1,4 @@
-//! `autolabel` end to end: a generated route localized without the camera,
+//! `autolabel` end to end: a generated route localized without the detector,
 //! its scans' persistent 3D corners projected into its images, scored
 //! against the generator's true labels, and written as a folder the
 //! trainer reads.

@@ -37,7 +37,7 @@ fn layout(op: u8) -> &'static [Field] {
         0x08 => &[Fixed(32), Bytes32, Fixed(8), Bytes32], // ChunkIndex
         0x09 => &[Fixed(16), Bytes32, Bytes32, Bytes64],  // Attachment
         0x0A => &[Fixed(40), Bytes32, Bytes32],           // AttachmentIndex
-        0x0B => &[Fixed(30), Bytes32],                    // Statistics
+        0x0B => &[Fixed(42), Bytes32],                    // Statistics
         0x0C => &[Bytes32, StringMap],                    // Metadata
         0x0D => &[Fixed(16), Bytes32],                    // MetadataIndex
         _ => &[],
@@ -164,7 +164,9 @@ mod tests {
         let schema = writer.add_schema("sensor_msgs/msg/Imu", "ros2msg", b"float64 x").unwrap();
         let metadata = BTreeMap::from([("offered_qos_profiles".to_string(), "reliable".to_string())]);
         let channel = writer.add_channel(schema, "/imu", "cdr", &metadata).unwrap();
-        let header = mcap::records::MessageHeader { channel_id: channel, sequence: 0, log_time: 1, publish_time: 1 };
+        // A real stamp (ns): the summary's statistics then hold large times beside their lengths.
+        let t = 1_700_000_000_123_456_789;
+        let header = mcap::records::MessageHeader { channel_id: channel, sequence: 0, log_time: t, publish_time: t };
         writer.write_to_known_channel(&header, &[0, 1, 0, 0, 7, 7, 7, 7]).unwrap();
         writer.finish().unwrap();
         drop(writer);

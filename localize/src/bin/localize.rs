@@ -582,7 +582,8 @@ fn autolabel(args: &AutolabelArgs) -> Result<()> {
         }
         None => None,
     };
-    let (sequence, localize_config, _) = open_input(&args.input, false, SensorFaults::default())?;
+    // The camera's images are labelled (and an RGB-D camera's edges register); only the detector is left out.
+    let (sequence, localize_config, _) = open_input(&args.input, true, SensorFaults::default())?;
     let progress = !std::env::var("CI").is_ok_and(|v| v == "true");
     let (report, run) =
         localize::autolabel::autolabel(&args.out, &*sequence, &localize_config, &config, truth.as_ref(), progress)?;
