@@ -69,6 +69,25 @@ impl Default for AutolabelConfig {
 }
 
 impl AutolabelConfig {
+    /// The defaults for a 3D sensor: a depth camera sees furniture-sized
+    /// scenes, whose faces (a cabinet's) spread less than a building's walls.
+    pub fn for_range(range: crate::sensor_set::RangeSensor) -> Self {
+        let mut config = Self::default();
+        if range == crate::sensor_set::RangeSensor::DepthCamera {
+            config.tracks.min_plane_extent_m = 0.1;
+        }
+        config
+    }
+
+    /// `self` with a settings file's JSON over it, checked.
+    pub fn overlaid(&self, file: &serde_json::Value) -> std::result::Result<Self, String> {
+        let mut merged = serde_json::to_value(self).map_err(|e| e.to_string())?;
+        crate::config::merge_json(&mut merged, file);
+        let config: Self = serde_json::from_value(merged).map_err(|e| e.to_string())?;
+        config.validate().map_err(|e| e.to_string())?;
+        Ok(config)
+    }
+
     pub fn validate(&self) -> std::result::Result<(), datasets::InvalidSetting> {
         use datasets::InvalidSetting;
         self.tracks.validate().map_err(|e| e.within("tracks"))?;

@@ -459,7 +459,7 @@ fn read_config(path: Option<&Path>) -> Result<LocalizeConfig> {
 fn read_config_file(path: Option<&Path>) -> Result<Option<serde_json::Value>> {
     let Some(path) = path else { return Ok(None) };
     let text = datasets::atomic::read_text(path)?;
-    let file = serde_json::from_str(&text).with_context(|| format!("{}: not a localization config", path.display()))?;
+    let file = serde_json::from_str(&text).with_context(|| format!("{}: not a JSON settings file", path.display()))?;
     Ok(Some(file))
 }
 
@@ -566,14 +566,17 @@ fn open_input(
 fn autolabel(args: &AutolabelArgs) -> Result<()> {
     use localize::autolabel::AutolabelConfig;
     localize::autolabel::check_output_folder(&args.out)?;
-    let config: AutolabelConfig = match &args.autolabel_config {
-        Some(path) => {
-            let text = datasets::atomic::read_text(path)?;
-            serde_json::from_str(&text).with_context(|| format!("{}: not an autolabel config", path.display()))?
-        }
-        None => AutolabelConfig::default(),
+    // The file is checked over the defaults before anything is read, and laid
+    // over the defaults of the recording's 3D sensor once it is open.
+    let file = read_config_file(args.autolabel_config.as_deref())?;
+    let overlay = |defaults: AutolabelConfig| match &file {
+        Some(file) => defaults.overlaid(file).map_err(|m| {
+            let name = args.autolabel_config.as_ref().map_or_else(String::new, |p| p.display().to_string());
+            anyhow::anyhow!("{name}: not an autolabel config: {m}")
+        }),
+        None => Ok(defaults),
     };
-    config.validate().map_err(|e| anyhow::anyhow!("invalid autolabel setting: {e}"))?;
+    overlay(AutolabelConfig::default())?;
     let beside = args.input.sequence.as_ref().map(|d| d.join("labels.json")).filter(|p| p.is_file());
     let truth = match args.truth_labels.clone().or(beside) {
         Some(path) => {
@@ -583,7 +586,8 @@ fn autolabel(args: &AutolabelArgs) -> Result<()> {
         None => None,
     };
     // The camera's images are labelled (and an RGB-D camera's edges register); only the detector is left out.
-    let (sequence, localize_config, _) = open_input(&args.input, true, SensorFaults::default())?;
+    let (sequence, localize_config, sensors) = open_input(&args.input, true, SensorFaults::default())?;
+    let config = overlay(AutolabelConfig::for_range(sensors.range))?;
     let progress = !std::env::var("CI").is_ok_and(|v| v == "true");
     let (report, run) =
         localize::autolabel::autolabel(&args.out, &*sequence, &localize_config, &config, truth.as_ref(), progress)?;
