@@ -321,3 +321,27 @@ fn an_error_prints_each_cause_once_without_a_backtrace() {
     let message = String::from_utf8_lossy(&out.stderr);
     assert!(message.contains("--frames") && message.contains("at least 1, got -1"), "{message}");
 }
+
+#[test]
+fn autolabel_refuses_bad_settings_and_a_foreign_folder_before_any_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let settings = dir.path().join("bad.json");
+    std::fs::write(&settings, r#"{"tracks": {"gate_m": -1}}"#).unwrap();
+    let out_dir = dir.path().join("labels");
+    let missing = dir.path().join("no-such-sequence");
+    let run = |args: &[&str]| {
+        let out = localize(args);
+        assert!(!out.status.success());
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
+    let (s, m, o) = (settings.to_str().unwrap(), missing.to_str().unwrap(), out_dir.to_str().unwrap());
+    let e = run(&["autolabel", "--sequence", m, "--out", o, "--autolabel-config", s]);
+    assert!(e.contains("bad.json") && e.contains("tracks.gate_m"), "{e}");
+    let e = run(&["autolabel", "--sequence", m, "--out", o]);
+    assert!(e.contains("no-such-sequence"), "{e}");
+    std::fs::create_dir_all(&out_dir).unwrap();
+    std::fs::write(out_dir.join("mine.txt"), "not a label").unwrap();
+    let e = run(&["autolabel", "--sequence", m, "--out", o]);
+    assert!(e.contains("labels") && e.contains("earlier autolabel"), "{e}");
+    assert!(out_dir.join("mine.txt").is_file());
+}
