@@ -301,8 +301,10 @@ pub struct AutolabelReport {
     /// Focal length x the standard error of the corner's position over the
     /// scans / its depth, per label.
     pub expected_error_px: Spread,
-    /// Against the recording's true labels, when it has them.
-    pub against_truth: Option<LabelScore>,
+    /// Against the recording's true labels, when it has them: within
+    /// `match_radius_px`, and within twice that (a label a few pixels
+    /// farther still frames the corner in its 96 px box).
+    pub against_truth: Vec<LabelScore>,
     pub config: AutolabelConfig,
 }
 
@@ -453,7 +455,7 @@ pub fn write_autolabels(
         datasets::atomic::write_bytes(&dir.join("corners.ply"), &corners_ply(&corners))?;
         let counts: Vec<f64> = entries.iter().map(|(_, l)| l.len() as f64).collect();
         let errors: Vec<f64> = entries.iter().flat_map(|(_, l)| l.iter().map(|a| a.expected_error_px)).collect();
-        let against_truth = truth.map(|truth| {
+        let against_truth = truth.map_or_else(Vec::new, |truth| {
             let labelled: Vec<(String, Vec<[f64; 2]>)> = entries
                 .iter()
                 .map(|(image, labels)| {
@@ -461,7 +463,7 @@ pub fn write_autolabels(
                     (name.to_string(), labels.iter().map(|l| l.point).collect())
                 })
                 .collect();
-            score_labels(&labelled, truth, config.match_radius_px)
+            [1.0, 2.0].map(|k| score_labels(&labelled, truth, k * config.match_radius_px)).to_vec()
         });
         let r = AutolabelReport {
             images: entries.len(),

@@ -612,7 +612,7 @@ fn autolabel(args: &AutolabelArgs) -> Result<()> {
         "expected pixel error (standard error of each corner's position, projected): median {:.2} px, 90% below {:.2} px",
         report.expected_error_px.median, report.expected_error_px.p90
     );
-    if let Some(s) = &report.against_truth {
+    for s in &report.against_truth {
         println!(
             "against the true labels ({} images, within {} px): precision {:.3}, recall {:.3} ({} of {} labels, {} true; \
              median error {:.2} px)",
