@@ -93,19 +93,12 @@ impl AutolabelConfig {
         self.tracks.validate().map_err(|e| e.within("tracks"))?;
         self.map_corners.validate().map_err(|e| e.within("map_corners"))?;
         self.labels.validate().map_err(|e| e.within("labels"))?;
-        let check = |name: &str, v: f64, lo: f64, hi: f64| {
-            if (lo..=hi).contains(&v) {
-                Ok(())
-            } else {
-                Err(InvalidSetting::field(name, format!("{v} outside [{lo}, {hi}]")))
-            }
-        };
-        check("occlusion_margin_m", self.occlusion_margin_m, 0.0, 5.0)?;
-        check("occlusion_fraction", self.occlusion_fraction, 0.0, 0.5)?;
-        check("depth_cell_px", f64::from(self.depth_cell_px), 1.0, 64.0)?;
-        check("splat_m", self.splat_m, 0.001, 2.0)?;
-        check("test_fraction", self.test_fraction, 0.0, 0.9)?;
-        check("match_radius_px", self.match_radius_px, 0.5, 200.0)?;
+        InvalidSetting::non_negative("occlusion_margin_m", self.occlusion_margin_m, 5.0)?;
+        InvalidSetting::non_negative("occlusion_fraction", self.occlusion_fraction, 0.5)?;
+        InvalidSetting::count("depth_cell_px", self.depth_cell_px as usize, 1, 64)?;
+        InvalidSetting::range("splat_m", self.splat_m, 0.001, 2.0, false)?;
+        InvalidSetting::non_negative("test_fraction", self.test_fraction, 0.9)?;
+        InvalidSetting::range("match_radius_px", self.match_radius_px, 0.5, 200.0, false)?;
         Ok(())
     }
 }
@@ -361,16 +354,7 @@ pub fn annotations(labels: &[AutoLabel], image_id: u64, next_id: &mut u64) -> Ve
         .iter()
         .map(|l| {
             *next_id += 1;
-            CocoAnnotation {
-                id: *next_id,
-                image_id,
-                category_id: 1,
-                bbox: l.bbox.to_xywh(),
-                area: l.bbox.area(),
-                iscrowd: 0,
-                corner_type: None,
-                point: Some([l.point[0] as f32, l.point[1] as f32]),
-            }
+            CocoAnnotation::corner(*next_id, image_id, &l.bbox, l.point, None)
         })
         .collect()
 }

@@ -59,20 +59,13 @@ impl Default for MapCornerConfig {
 
 impl MapCornerConfig {
     pub fn validate(&self) -> Result<(), InvalidSetting> {
-        let check = |name: &str, v: f64, lo: f64, hi: f64| {
-            if (lo..=hi).contains(&v) {
-                Ok(())
-            } else {
-                Err(InvalidSetting::field(name, format!("{v} outside [{lo}, {hi}]")))
-            }
-        };
-        check("pair_radius_m", self.pair_radius_m, 0.05, 3.0)?;
-        check("min_angle_deg", self.min_angle_deg, 10.0, 90.0)?;
-        check("min_votes", self.min_votes as f64, 1.0, 1e6)?;
-        check("cell_m", self.cell_m, 0.005, 0.5)?;
-        check("horizontal_radius_m", self.horizontal_radius_m, 0.05, 3.0)?;
-        check("min_horizontal", self.min_horizontal as f64, 1.0, 1e6)?;
-        check("height_slack_m", self.height_slack_m, 0.0, 3.0)?;
+        InvalidSetting::range("pair_radius_m", self.pair_radius_m, 0.05, 3.0, false)?;
+        InvalidSetting::range("min_angle_deg", self.min_angle_deg, 10.0, 90.0, false)?;
+        InvalidSetting::count("min_votes", self.min_votes, 1, 1_000_000)?;
+        InvalidSetting::range("cell_m", self.cell_m, 0.005, 0.5, false)?;
+        InvalidSetting::range("horizontal_radius_m", self.horizontal_radius_m, 0.05, 3.0, false)?;
+        InvalidSetting::count("min_horizontal", self.min_horizontal, 1, 1_000_000)?;
+        InvalidSetting::non_negative("height_slack_m", self.height_slack_m, 3.0)?;
         Ok(())
     }
 }

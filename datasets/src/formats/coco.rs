@@ -45,6 +45,22 @@ pub struct CocoAnnotation {
     pub point: Option<[f32; 2]>,
 }
 
+impl CocoAnnotation {
+    /// A corner label of the project's one class: its box and its point.
+    pub fn corner(id: u64, image_id: u64, bbox: &BBox, point: [f64; 2], kind: Option<&str>) -> Self {
+        Self {
+            id,
+            image_id,
+            category_id: 1,
+            bbox: bbox.to_xywh(),
+            area: bbox.area(),
+            iscrowd: 0,
+            corner_type: kind.map(str::to_string),
+            point: Some([point[0] as f32, point[1] as f32]),
+        }
+    }
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CocoCategory {
     pub id: u64,

@@ -28,16 +28,7 @@ pub(super) fn coco_annotations(labels: &[CornerLabel], image_id: u64, next_id: &
         .iter()
         .map(|l| {
             *next_id += 1;
-            CocoAnnotation {
-                id: *next_id,
-                image_id,
-                category_id: 1,
-                bbox: l.bbox.to_xywh(),
-                area: l.bbox.area(),
-                iscrowd: 0,
-                corner_type: Some(l.kind.name().to_string()),
-                point: Some([l.point[0] as f32, l.point[1] as f32]),
-            }
+            CocoAnnotation::corner(*next_id, image_id, &l.bbox, l.point, Some(l.kind.name()))
         })
         .collect()
 }
