@@ -65,6 +65,20 @@ pub fn check(path: &Path, bytes: &[u8]) -> Result<()> {
     Ok(())
 }
 
+/// Checks the one record at `offset` (a chunk index's pointer to a message
+/// index, which the crate parses wherever it points).
+pub fn check_record_at(path: &Path, bytes: &[u8], offset: u64) -> Result<()> {
+    match usize::try_from(offset) {
+        Ok(at) if at < bytes.len() => {
+            let end = bytes.len().min(at.saturating_add(9).saturating_add(
+                bytes.get(at + 1..at + 9).map_or(0, |l| u64::from_le_bytes(l.try_into().expect("8 bytes"))) as usize,
+            ));
+            check_records(path, bytes, at, end, 1)
+        }
+        _ => Ok(()), // Out of the file: the crate says so.
+    }
+}
+
 /// Checks the records in `bytes[from..to]`; a record cut off by `to` is
 /// left to the reader, which names a truncated file as such.
 fn check_records(path: &Path, bytes: &[u8], from: usize, to: usize, depth: u8) -> Result<()> {
@@ -208,5 +222,14 @@ mod tests {
             }
         }
         assert!(summary_hits >= 4, "{summary_hits} damaged lengths in the summary section");
+        // A pointer into the middle of a record reads what lies there as a
+        // record: a schema's name taken for a record whose string claims 2^31 bytes.
+        let bytes = written(true);
+        let at = bytes.windows(4).position(|w| w == b"/imu").unwrap();
+        let mut fake = bytes.clone();
+        fake[at..at + 13].copy_from_slice(&[0x01, 40, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0x80]);
+        let error = super::check_record_at(path, &fake, at as u64).unwrap_err().to_string();
+        assert!(error.contains("declares 2147483648 bytes"), "{error}");
+        super::check_record_at(path, &bytes, u64::MAX).unwrap();
     }
 }
