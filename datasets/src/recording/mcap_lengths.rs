@@ -20,26 +20,30 @@ enum Field {
     Bytes64,
     /// u32 byte length, then string-to-string entries.
     StringMap,
+    /// u32 byte length, then entries of this many bytes: the crate reads
+    /// whole entries until it has passed the length, so a length between
+    /// two entries moves every later field.
+    FixedMap(usize),
     /// u64 length, then records (an uncompressed chunk's, when the compression is empty).
     ChunkRecords,
 }
 
-use Field::{Bytes32, Bytes64, ChunkRecords, Fixed, StringMap};
+use Field::{Bytes32, Bytes64, ChunkRecords, Fixed, FixedMap, StringMap};
 
 /// The layout of each record type that holds a length (MCAP specification, version 0).
 fn layout(op: u8) -> &'static [Field] {
     match op {
-        0x01 => &[Bytes32, Bytes32],                      // Header
-        0x03 => &[Fixed(2), Bytes32, Bytes32, Bytes32],   // Schema
-        0x04 => &[Fixed(4), Bytes32, Bytes32, StringMap], // Channel
-        0x06 => &[Fixed(28), Bytes32, ChunkRecords],      // Chunk
-        0x07 => &[Fixed(2), Bytes32],                     // MessageIndex
-        0x08 => &[Fixed(32), Bytes32, Fixed(8), Bytes32], // ChunkIndex
-        0x09 => &[Fixed(16), Bytes32, Bytes32, Bytes64],  // Attachment
-        0x0A => &[Fixed(40), Bytes32, Bytes32],           // AttachmentIndex
-        0x0B => &[Fixed(42), Bytes32],                    // Statistics
-        0x0C => &[Bytes32, StringMap],                    // Metadata
-        0x0D => &[Fixed(16), Bytes32],                    // MetadataIndex
+        0x01 => &[Bytes32, Bytes32],                           // Header
+        0x03 => &[Fixed(2), Bytes32, Bytes32, Bytes32],        // Schema
+        0x04 => &[Fixed(4), Bytes32, Bytes32, StringMap],      // Channel
+        0x06 => &[Fixed(28), Bytes32, ChunkRecords],           // Chunk
+        0x07 => &[Fixed(2), FixedMap(16)],                     // MessageIndex
+        0x08 => &[Fixed(32), FixedMap(10), Fixed(8), Bytes32], // ChunkIndex
+        0x09 => &[Fixed(16), Bytes32, Bytes32, Bytes64],       // Attachment
+        0x0A => &[Fixed(40), Bytes32, Bytes32],                // AttachmentIndex
+        0x0B => &[Fixed(42), FixedMap(10)],                    // Statistics
+        0x0C => &[Bytes32, StringMap],                         // Metadata
+        0x0D => &[Fixed(16), Bytes32],                         // MetadataIndex
         _ => &[],
     }
 }
@@ -56,10 +60,11 @@ pub fn check(path: &Path, bytes: &[u8]) -> Result<()> {
     const FOOTER: usize = 1 + 8 + 20;
     if let Some(footer) = bytes.len().checked_sub(MAGIC + FOOTER).filter(|&f| f >= MAGIC && bytes[f] == 0x02) {
         let start = u64::from_le_bytes(bytes[footer + 9..footer + 17].try_into().expect("8 bytes"));
+        // The crate reads on to the end of the file, not to the footer.
         if let Ok(start) = usize::try_from(start)
-            && (MAGIC..footer).contains(&start)
+            && (MAGIC..bytes.len()).contains(&start)
         {
-            check_records(path, bytes, start, footer, 0)?;
+            check_records(path, bytes, start, bytes.len(), 0)?;
         }
     }
     Ok(())
@@ -123,7 +128,7 @@ fn check_fields(path: &Path, bytes: &[u8], op: u8, body: usize, end: usize, dept
                 }
                 continue;
             }
-            Bytes32 | StringMap if at + 4 <= end => (4, u32_at(at)),
+            Bytes32 | StringMap | FixedMap(_) if at + 4 <= end => (4, u32_at(at)),
             Bytes64 | ChunkRecords if at + 8 <= end => (8, u64_at(at)),
             _ => return Ok(()),
         };
@@ -134,6 +139,16 @@ fn check_fields(path: &Path, bytes: &[u8], op: u8, body: usize, end: usize, dept
         let stop = start + declared as usize;
         match field {
             StringMap => check_string_map(&bad, &u32_at, start, stop)?,
+            FixedMap(entry) if declared % entry as u64 != 0 => {
+                return Err(DataError::invalid(
+                    path,
+                    format!(
+                        "record of type 0x{op:02x} at byte {}: a map of {entry}-byte entries at byte {at} declares \
+                         {declared} bytes (a damaged length)",
+                        body - 9
+                    ),
+                ));
+            }
             // The chunk's compression string comes just before its records.
             Bytes32 if op == 0x06 => compressed = declared != 0,
             ChunkRecords if !compressed && depth == 0 => check_records(path, bytes, start, stop, depth + 1)?,
@@ -231,5 +246,16 @@ mod tests {
         let error = super::check_record_at(path, &fake, at as u64).unwrap_err().to_string();
         assert!(error.contains("declares 2147483648 bytes"), "{error}");
         super::check_record_at(path, &bytes, u64::MAX).unwrap();
+        // A chunk index whose offsets map (10-byte entries) claims 8 bytes:
+        // the crate would read a whole entry and every later field 2 bytes off.
+        let footer = bytes.len() - 37;
+        let mut at = u64::from_le_bytes(bytes[footer + 9..footer + 17].try_into().unwrap()) as usize;
+        while bytes[at] != 0x08 {
+            at += 9 + u64::from_le_bytes(bytes[at + 1..at + 9].try_into().unwrap()) as usize;
+        }
+        let mut damaged = bytes.clone();
+        damaged[at + 9 + 32..at + 9 + 36].copy_from_slice(&8u32.to_le_bytes());
+        let error = super::check(path, &damaged).unwrap_err().to_string();
+        assert!(error.contains("map of 10-byte entries") && error.contains("declares 8 bytes"), "{error}");
     }
 }
