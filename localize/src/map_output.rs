@@ -281,10 +281,13 @@ mod tests {
         old["walls"] = wall(1.0);
         std::fs::write(&json, old.to_string()).unwrap();
         assert_eq!(read_map(dir.path()).unwrap().walls.len(), 1);
-        old["walls"] = wall(0.0);
-        std::fs::write(&json, old.to_string()).unwrap();
-        let weightless = read_map(dir.path()).unwrap_err().to_string();
-        assert!(weightless.contains("wall 0") && weightless.contains("no weight"), "{weightless}");
+        // ...and so would a weight of 1e-320 (found by fuzzing: spreads of inf).
+        for weight in [0.0, 1e-320] {
+            old["walls"] = wall(weight);
+            std::fs::write(&json, old.to_string()).unwrap();
+            let weightless = read_map(dir.path()).unwrap_err().to_string();
+            assert!(weightless.contains("wall 0") && weightless.contains("no weight"), "{weightless}");
+        }
         // A wall without a direction, an origin a light year away, too many keyframes: named.
         let mut zero = wall(1.0);
         zero[0]["normal"] = serde_json::json!([0.0, 0.0, 0.0]);

@@ -94,11 +94,14 @@ impl PlaneLandmark {
     /// file may say otherwise).
     pub fn is_valid(&self) -> bool {
         let finite = |v: &Vec3| v.iter().all(|x| x.is_finite());
-        self.weight > 0.0
+        // A weight near zero divides the sums into infinities (spreads of inf).
+        self.weight >= 1e-9
             && finite(&self.normal)
             && finite(&self.normal_sum)
             && self.point_sum.as_ref().is_none_or(finite)
             && [self.distance, self.distance_sum, self.distance_square_sum, self.weight].iter().all(|x| x.is_finite())
+            && self.offset_spread_m().is_finite()
+            && self.normal_spread_deg().is_finite()
     }
 
     /// Weighted standard deviation of the observed offsets.
