@@ -80,7 +80,14 @@ pub fn check_record_at(path: &Path, bytes: &[u8], offset: u64) -> Result<()> {
             ));
             check_records(path, bytes, at, end, 1)
         }
-        _ => Ok(()), // Out of the file: the crate says so.
+        // The crate's own bound check wraps around for an offset near 2^64 and then slices past the end.
+        _ => Err(DataError::invalid(
+            path,
+            format!(
+                "a chunk index points to a message index at byte {offset}, beyond the file's {} bytes",
+                bytes.len()
+            ),
+        )),
     }
 }
 
@@ -245,7 +252,8 @@ mod tests {
         fake[at..at + 13].copy_from_slice(&[0x01, 40, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0x80]);
         let error = super::check_record_at(path, &fake, at as u64).unwrap_err().to_string();
         assert!(error.contains("declares 2147483648 bytes"), "{error}");
-        super::check_record_at(path, &bytes, u64::MAX).unwrap();
+        let error = super::check_record_at(path, &bytes, u64::MAX).unwrap_err().to_string();
+        assert!(error.contains("beyond the file"), "{error}");
         // A chunk index whose offsets map (10-byte entries) claims 8 bytes:
         // the crate would read a whole entry and every later field 2 bytes off.
         let footer = bytes.len() - 37;
