@@ -3,8 +3,9 @@
 //! map for the length a record declares before it finds that the record is
 //! shorter, so one damaged length field asks for up to 4 GiB. Here every
 //! length-prefixed field of every record (top level, and inside uncompressed
-//! chunks) must fit in its record. Compressed chunks are covered by their
-//! CRC, which the reader checks before it parses their records.
+//! chunks) must fit in its record. A compressed chunk with a CRC is covered
+//! by it (the reader checks it before it parses the chunk's records); one
+//! without is unpacked here and its records checked as well.
 
 use std::path::Path;
 
@@ -159,11 +160,33 @@ fn check_fields(path: &Path, bytes: &[u8], op: u8, body: usize, end: usize, dept
             // The chunk's compression string comes just before its records.
             Bytes32 if op == 0x06 => compressed = declared != 0,
             ChunkRecords if !compressed && depth == 0 => check_records(path, bytes, start, stop, depth + 1)?,
+            // A compressed chunk without a CRC (0: none stored) is unpacked
+            // and its records checked too: nothing else vouches for them.
+            ChunkRecords if compressed && depth == 0 && u32_at(body + 24) == 0 => {
+                let size = u64_at(body + 16).min(super::mcap_file::MAX_RECORD_BYTES as u64);
+                let compression = &bytes[body + 32..body + 32 + u32_at(body + 28) as usize];
+                let records = unpack(compression, &bytes[start..stop], size);
+                check_records(path, &records, 0, records.len(), depth + 1)?;
+            }
             _ => {}
         }
         at = stop;
     }
     Ok(())
+}
+
+/// A chunk's records unpacked (at most `size` bytes), as far as they
+/// unpack: a decoder that stops at damage late in the data has already
+/// given what another decoder would parse.
+fn unpack(compression: &[u8], data: &[u8], size: u64) -> Vec<u8> {
+    use std::io::Read;
+    let mut out = Vec::new();
+    let _ = match compression {
+        b"lz4" => lz4::Decoder::new(data).and_then(|d| d.take(size).read_to_end(&mut out)),
+        b"zstd" => zstd::stream::read::Decoder::new(data).and_then(|d| d.take(size).read_to_end(&mut out)),
+        _ => Ok(0),
+    };
+    out
 }
 
 /// Entries of a string-to-string map: each a u32-prefixed key and value
@@ -207,6 +230,35 @@ mod tests {
         writer.finish().unwrap();
         drop(writer);
         out.into_inner()
+    }
+
+    #[test]
+    fn a_compressed_chunk_without_a_crc_is_unpacked_and_its_records_checked() {
+        // A channel record whose topic claims 2^31 bytes, in a zstd chunk with no CRC.
+        let mut channel = vec![0x04];
+        let body: Vec<u8> = [&[1u8, 0, 1, 0][..], &(1u32 << 31).to_le_bytes(), b"/imu"].concat();
+        channel.extend((body.len() as u64).to_le_bytes());
+        channel.extend(&body);
+        let packed = zstd::encode_all(&channel[..], 3).unwrap();
+        let mut chunk = Vec::new();
+        chunk.extend([0u8; 16]);
+        chunk.extend((channel.len() as u64).to_le_bytes());
+        chunk.extend(0u32.to_le_bytes());
+        chunk.extend(4u32.to_le_bytes());
+        chunk.extend(b"zstd");
+        chunk.extend((packed.len() as u64).to_le_bytes());
+        chunk.extend(&packed);
+        let mut file = b"\x89MCAP0\r\n".to_vec();
+        file.push(0x06);
+        file.extend((chunk.len() as u64).to_le_bytes());
+        file.extend(&chunk);
+        let path = std::path::Path::new("packed.mcap");
+        let error = super::check(path, &file).unwrap_err().to_string();
+        assert!(error.contains("declares 2147483648 bytes"), "{error}");
+        // With a CRC stored the chunk is left to the reader's CRC check.
+        let crc_at = 8 + 9 + 24;
+        file[crc_at..crc_at + 4].copy_from_slice(&1u32.to_le_bytes());
+        super::check(path, &file).unwrap();
     }
 
     #[test]
