@@ -39,9 +39,7 @@ impl Default for CornerTrackConfig {
 
 impl CornerTrackConfig {
     pub fn validate(&self) -> Result<(), InvalidSetting> {
-        if !(self.gate_m > 0.0 && self.gate_m <= 2.0) {
-            return Err(InvalidSetting::field("gate_m", format!("{} m outside (0, 2]", self.gate_m)));
-        }
+        InvalidSetting::positive("gate_m", self.gate_m, 2.0)?;
         if self.min_scans < 2 {
             return Err(InvalidSetting::field("min_scans", "must be at least 2 (one scan proves nothing persists)"));
         }
@@ -54,12 +52,7 @@ impl CornerTrackConfig {
                 format!("{} m must lie in (0, gate_m = {} m)", self.max_spread_m, self.gate_m),
             ));
         }
-        if !(self.min_plane_extent_m >= 0.0 && self.min_plane_extent_m <= 10.0) {
-            return Err(InvalidSetting::field(
-                "min_plane_extent_m",
-                format!("{} m outside [0, 10]", self.min_plane_extent_m),
-            ));
-        }
+        InvalidSetting::non_negative("min_plane_extent_m", self.min_plane_extent_m, 10.0)?;
         Ok(())
     }
 }
