@@ -2,7 +2,7 @@
 
 use crate::detector::Detector;
 use crate::labeled::LabeledImage;
-use crate::metrics::{EvalMetrics, evaluate};
+use crate::metrics::{EvalMetrics, evaluate_ignoring};
 use crate::network::Detection;
 
 /// Score at and above which a detection counts as found (precision, recall, pixel error).
@@ -20,5 +20,6 @@ pub fn evaluate_set(detector: &Detector, set: &[LabeledImage], batch: usize) -> 
         }
     }
     let truth: Vec<_> = set.iter().map(|im| im.truth.clone()).collect();
-    evaluate(&predictions, &truth, OPERATING_SCORE)
+    let ignore: Vec<_> = set.iter().map(|im| im.ignore.clone()).collect();
+    evaluate_ignoring(&predictions, &truth, &ignore, OPERATING_SCORE)
 }

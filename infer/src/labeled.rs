@@ -21,6 +21,11 @@ pub struct LabeledImage {
     pub height: u32,
     /// Corners in original image pixels.
     pub truth: Vec<TruthCorner>,
+    /// Regions that may or may not hold a corner (COCO `iscrowd` 1, as
+    /// `localize autolabel` writes where its 3D sensor cannot tell): neither
+    /// taught as corner nor as background, and detections there are not
+    /// counted.
+    pub ignore: Vec<BBox>,
 }
 
 impl LabeledImage {
@@ -32,10 +37,16 @@ impl LabeledImage {
         let map = self.to_net(size);
         self.truth.iter().map(|t| map.to_net(&t.bbox)).collect()
     }
+    /// Ignore regions in network input pixels.
+    pub fn net_ignore(&self, size: u32) -> Vec<BBox> {
+        let map = self.to_net(size);
+        self.ignore.iter().map(|b| map.to_net(b)).collect()
+    }
 }
 
 /// Loads the images of a COCO file (paths relative to the file's folder)
-/// and preprocesses them. An annotation without a `point` uses its box centre.
+/// and preprocesses them. An annotation without a `point` uses its box centre;
+/// `iscrowd` annotations are ignore regions.
 pub fn load_coco_set(annotations: &Path, preprocess_config: &PreprocessConfig) -> Result<Vec<LabeledImage>, DataError> {
     let coco = read_coco(annotations)?;
     if coco.images.is_empty() {
@@ -60,16 +71,19 @@ pub fn load_coco_set(annotations: &Path, preprocess_config: &PreprocessConfig) -
                     ),
                 ));
             }
-            let truth = coco
-                .annotations_of(im.id)
+            let (crowd, corners): (Vec<_>, Vec<_>) = coco.annotations_of(im.id).partition(|a| a.iscrowd != 0);
+            let truth = corners
+                .into_iter()
                 .map(|a| TruthCorner { bbox: a.bbox(), point: a.point.unwrap_or_else(|| a.bbox().centre()) })
                 .collect();
+            let ignore = crowd.into_iter().map(|a| a.bbox()).collect();
             Ok(LabeledImage {
                 path,
                 input: network_input(&image, preprocess_config),
                 width: im.width,
                 height: im.height,
                 truth,
+                ignore,
             })
         })
         .collect()

@@ -33,7 +33,20 @@ pub const IOU_THRESHOLD: f32 = 0.5;
 
 /// Evaluates detections against the truth, image by image (same order).
 pub fn evaluate(predictions: &[Vec<Detection>], truth: &[Vec<TruthCorner>], operating_score: f32) -> EvalMetrics {
+    evaluate_ignoring(predictions, truth, &vec![Vec::new(); truth.len()], operating_score)
+}
+
+/// As `evaluate`, but a detection that matches no true corner and covers an
+/// ignore region of its image (IoU >= 0.5, as COCO's crowd regions) counts
+/// neither as found nor as false.
+pub fn evaluate_ignoring(
+    predictions: &[Vec<Detection>],
+    truth: &[Vec<TruthCorner>],
+    ignore: &[Vec<BBox>],
+    operating_score: f32,
+) -> EvalMetrics {
     assert_eq!(predictions.len(), truth.len(), "one prediction list per image");
+    assert_eq!(ignore.len(), truth.len(), "one ignore list per image");
     let total_truth: usize = truth.iter().map(Vec::len).sum();
     let mut all: Vec<(f32, usize, usize)> = Vec::new();
     for (img, dets) in predictions.iter().enumerate() {
@@ -69,6 +82,7 @@ pub fn evaluate(predictions: &[Vec<Detection>], truth: &[Vec<TruthCorner>], oper
                     errors.push(((cx - px).powi(2) + (cy - py).powi(2)).sqrt() as f64);
                 }
             }
+            None if ignore[img].iter().any(|r| iou(&det.bbox, r) >= IOU_THRESHOLD) => continue,
             None => {
                 fp += 1;
                 if score >= operating_score {
@@ -133,5 +147,25 @@ mod tests {
         // Perfect detections: AP 1.
         let m = evaluate(&[vec![det(0.0, 0.9)]], &[vec![truth(0.0)]], 0.5);
         assert_eq!((m.ap50, m.precision, m.recall, m.mean_pixel_error), (1.0, 1.0, 1.0, Some(0.0)));
+    }
+
+    #[test]
+    fn detections_in_ignore_regions_count_neither_way() {
+        // The false detections at 100 (0.8) and 200 (0.7) fall in ignore regions:
+        // ranked TP, TP left, the miss of image 1 still missed: AP 2/3.
+        let predictions = vec![vec![det(0.0, 0.9), det(100.0, 0.8), det(51.0, 0.6)], vec![det(200.0, 0.7)]];
+        let truths = vec![vec![truth(0.0), truth(50.0)], vec![truth(20.0)]];
+        let ignore = vec![vec![BBox::new(101.0, 0.0, 111.0, 10.0)], vec![BBox::new(200.0, 0.0, 210.0, 10.0)]];
+        let m = evaluate_ignoring(&predictions, &truths, &ignore, 0.5);
+        assert!((m.ap50 - 2.0 / 3.0).abs() < 1e-12, "{}", m.ap50);
+        assert_eq!(m.precision, 1.0);
+        // A region the detection barely touches (IoU < 0.5) does not excuse it.
+        let far = vec![vec![BBox::new(106.0, 0.0, 116.0, 10.0)], vec![]];
+        let m = evaluate_ignoring(&predictions, &truths, &far, 0.5);
+        assert_eq!(m.precision, 0.5);
+        // An ignore region does not take a true corner's match.
+        let over_truth = vec![vec![BBox::new(0.0, 0.0, 10.0, 10.0)], vec![]];
+        let m = evaluate_ignoring(&predictions, &truths, &over_truth, 0.5);
+        assert_eq!(m.recall, 2.0 / 3.0);
     }
 }

@@ -50,6 +50,34 @@ pub struct AutolabelConfig {
     /// A label within this many pixels of a true corner matches it (when the
     /// recording has true labels, as generated sequences do).
     pub match_radius_px: f64,
+    /// Where a corner may be that the 3D sensor cannot confirm.
+    pub unsure: UnsureConfig,
+}
+
+/// Places where the labels cannot say "no corner here", written as COCO
+/// ignore regions (`iscrowd` 1): training neither teaches a corner nor
+/// background there, and evaluation does not count detections there. Without
+/// them every corner the 3D sensor misses would be taught as background.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct UnsureConfig {
+    /// The teacher detector's detections at or above this score (when a
+    /// teacher is given) that no label confirms.
+    pub teacher_score: f32,
+    /// The teacher's detections at or above this score that no label
+    /// confirms become labels themselves (kind "teacher"): self-training,
+    /// so that fine-tuning keeps what the teacher finds. None: never.
+    pub teacher_label_score: Option<f32>,
+    /// The point map's corners, when they are not labels themselves.
+    pub map_corners: bool,
+    /// Scan corners seen more than once that did not persist.
+    pub passing_tracks: bool,
+}
+
+impl Default for UnsureConfig {
+    fn default() -> Self {
+        Self { teacher_score: 0.3, teacher_label_score: Some(0.7), map_corners: true, passing_tracks: true }
+    }
 }
 
 impl Default for AutolabelConfig {
@@ -64,6 +92,7 @@ impl Default for AutolabelConfig {
             splat_m: 0.1,
             test_fraction: 0.2,
             match_radius_px: 10.0,
+            unsure: UnsureConfig::default(),
         }
     }
 }
@@ -99,6 +128,12 @@ impl AutolabelConfig {
         InvalidSetting::range("splat_m", self.splat_m, 0.001, 2.0, false)?;
         InvalidSetting::non_negative("test_fraction", self.test_fraction, 0.9)?;
         InvalidSetting::range("match_radius_px", self.match_radius_px, 0.5, 200.0, false)?;
+        InvalidSetting::range("teacher_score", f64::from(self.unsure.teacher_score), 0.0, 1.0, true)
+            .map_err(|e| e.within("unsure"))?;
+        if let Some(score) = self.unsure.teacher_label_score {
+            InvalidSetting::range("teacher_label_score", f64::from(score), 0.0, 1.0, true)
+                .map_err(|e| e.within("unsure"))?;
+        }
         Ok(())
     }
 }
@@ -110,24 +145,51 @@ pub struct LabelCorner {
     pub sigma_m: f64,
 }
 
-/// The corners to label: the scans' persistent corners, then the point
-/// map's corners farther than the tracks' gate from all of them.
-pub fn label_corners(run: &RunResult, config: &AutolabelConfig) -> (Vec<LabelCorner>, usize) {
+/// The 3D corners of a run, sure and unsure.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct RunCorners {
+    /// To label: the scans' persistent corners, then (when enabled) the
+    /// point map's corners farther than the tracks' gate from all of them.
+    pub labels: Vec<LabelCorner>,
+    /// How many of `labels` came from the point map.
+    pub from_map: usize,
+    /// Maybe corners (`UnsureConfig`), each farther than the gate from every label.
+    pub unsure: Vec<LabelCorner>,
+}
+
+pub fn label_corners(run: &RunResult, config: &AutolabelConfig) -> RunCorners {
+    let of_track =
+        |t: &CornerTrack| LabelCorner { position: t.position, sigma_m: t.spread_m / (t.scans as f64).sqrt() };
     let tracks: Vec<CornerTrack> = run.corner_tracks.as_ref().map(|t| t.persistent()).unwrap_or_default();
-    let mut corners: Vec<LabelCorner> = tracks
-        .iter()
-        .map(|t| LabelCorner { position: t.position, sigma_m: t.spread_m / (t.scans as f64).sqrt() })
-        .collect();
-    let mut from_map = 0;
-    if config.map_corners.enabled {
-        for c in map_corners(&run.point_map, &config.map_corners) {
-            if corners.iter().all(|k| (k.position - c.position).norm() > config.tracks.gate_m) {
-                corners.push(LabelCorner { position: c.position, sigma_m: c.sigma_m });
-                from_map += 1;
+    let mut out = RunCorners { labels: tracks.iter().map(of_track).collect(), ..Default::default() };
+    let apart =
+        |corners: &[LabelCorner], p: &Vec3| corners.iter().all(|k| (k.position - p).norm() > config.tracks.gate_m);
+    let from_map = if config.map_corners.enabled || config.unsure.map_corners {
+        map_corners(&run.point_map, &config.map_corners)
+    } else {
+        Vec::new()
+    };
+    for c in from_map {
+        if !apart(&out.labels, &c.position) {
+            continue;
+        }
+        let corner = LabelCorner { position: c.position, sigma_m: c.sigma_m };
+        if config.map_corners.enabled {
+            out.labels.push(corner);
+            out.from_map += 1;
+        } else {
+            out.unsure.push(corner);
+        }
+    }
+    if config.unsure.passing_tracks {
+        let passing = run.corner_tracks.as_ref().map(|t| t.passing()).unwrap_or_default();
+        for t in &passing {
+            if apart(&out.labels, &t.position) {
+                out.unsure.push(of_track(t));
             }
         }
     }
-    (corners, from_map)
+    out
 }
 
 /// One corner projected into one image.
@@ -149,40 +211,99 @@ pub struct ImageLabels {
     pub labels: Vec<AutoLabel>,
     /// In front, inside the image and in range, but behind a mapped surface.
     pub hidden: usize,
+    /// Centres of ignore regions: unsure corners seen from here, and the
+    /// teacher's detections that no label confirms.
+    pub unsure: Vec<[f64; 2]>,
+    /// The teacher's confident detections that no label confirms, taken as
+    /// labels (`UnsureConfig::teacher_label_score`).
+    pub teacher: Vec<[f64; 2]>,
 }
 
-/// The corners that `camera` sees at `world_from_camera`.
+/// The corners that `camera` sees at `world_from_camera`, and the boxes of
+/// the unsure corners it sees farther than the match radius from every label.
 pub fn label_image(
-    corners: &[LabelCorner],
-    points: &[MapPoint],
+    corners: &RunCorners,
+    depth: Option<&DepthBuffer>,
     camera: &datasets::camera::PinholeCamera,
     world_from_camera: &Pose3,
     config: &AutolabelConfig,
 ) -> ImageLabels {
     let camera_from_world = world_from_camera.inverse();
     let max_depth = config.labels.max_depth_m;
-    let depth = (!points.is_empty()).then(|| {
-        DepthBuffer::render(points, camera, &camera_from_world, config.depth_cell_px, config.splat_m, max_depth)
-    });
     let focal = 0.5 * (camera.fx + camera.fy);
     let mut out = ImageLabels::default();
-    for (corner, t) in corners.iter().enumerate() {
+    // Where a corner appears: `Err(true)` when a mapped surface hides it.
+    let project = |t: &LabelCorner| -> std::result::Result<([f64; 2], f64), bool> {
         let p = camera_from_world * nalgebra::Point3::from(t.position);
         if p.z < 0.2 || p.z > max_depth {
-            continue;
+            return Err(false);
         }
-        let Some(uv) = camera.project(&p).filter(|&uv| camera.contains(uv)) else { continue };
+        let uv = camera.project(&p).filter(|&uv| camera.contains(uv)).ok_or(false)?;
         let margin = config.occlusion_margin_m + config.occlusion_fraction * p.z;
-        if depth.as_ref().is_some_and(|d| d.at(uv) < p.z - margin) {
-            out.hidden += 1;
-            continue;
+        if depth.is_some_and(|d| d.at(uv) < p.z - margin) {
+            return Err(true);
         }
-        let size = config.labels.box_size_px;
-        let bbox = BBox::around(uv[0] as f32, uv[1] as f32, size).clip(camera.width as f32, camera.height as f32);
-        let expected_error_px = focal * t.sigma_m / p.z;
-        out.labels.push(AutoLabel { corner, point: uv, bbox, depth_m: p.z, expected_error_px });
+        Ok((uv, p.z))
+    };
+    for (corner, t) in corners.labels.iter().enumerate() {
+        match project(t) {
+            Ok((uv, depth_m)) => {
+                let bbox = label_box(uv, camera, config);
+                let expected_error_px = focal * t.sigma_m / depth_m;
+                out.labels.push(AutoLabel { corner, point: uv, bbox, depth_m, expected_error_px });
+            }
+            Err(hidden) => out.hidden += usize::from(hidden),
+        }
+    }
+    for t in &corners.unsure {
+        if let Ok((uv, _)) = project(t) {
+            out.add_unsure(uv, config);
+        }
     }
     out
+}
+
+/// The map's surfaces seen from `world_from_camera` (None without a point map).
+pub fn render_depth(
+    points: &[MapPoint],
+    camera: &datasets::camera::PinholeCamera,
+    world_from_camera: &Pose3,
+    config: &AutolabelConfig,
+) -> Option<DepthBuffer> {
+    let camera_from_world = world_from_camera.inverse();
+    let max_depth = config.labels.max_depth_m;
+    (!points.is_empty()).then(|| {
+        DepthBuffer::render(points, camera, &camera_from_world, config.depth_cell_px, config.splat_m, max_depth)
+    })
+}
+
+/// A label's box: `datagen`'s size around the point, clipped to the image.
+fn label_box(uv: [f64; 2], camera: &datasets::camera::PinholeCamera, config: &AutolabelConfig) -> BBox {
+    let size = config.labels.box_size_px;
+    BBox::around(uv[0] as f32, uv[1] as f32, size).clip(camera.width as f32, camera.height as f32)
+}
+
+impl ImageLabels {
+    fn labelled_near(&self, uv: [f64; 2], radius: f64) -> bool {
+        let near = |p: &[f64; 2]| (p[0] - uv[0]).hypot(p[1] - uv[1]) <= radius;
+        self.labels.iter().any(|l| near(&l.point)) || self.teacher.iter().any(near)
+    }
+
+    /// Adds an ignore region at `uv` unless a label lies within the match radius.
+    pub fn add_unsure(&mut self, uv: [f64; 2], config: &AutolabelConfig) {
+        if !self.labelled_near(uv, config.match_radius_px) {
+            self.unsure.push(uv);
+        }
+    }
+
+    /// Adds a teacher's label at `uv` unless a label lies within the match
+    /// radius; an ignore region there gives way to it.
+    pub fn add_teacher(&mut self, uv: [f64; 2], config: &AutolabelConfig) {
+        if !self.labelled_near(uv, config.match_radius_px) {
+            self.unsure.retain(|p| (p[0] - uv[0]).hypot(p[1] - uv[1]) > config.match_radius_px);
+            self.teacher.push(uv);
+        }
+    }
 }
 
 /// Labels against true labels, matched one to one within a pixel radius.
@@ -287,6 +408,14 @@ pub struct AutolabelReport {
     pub tracks: usize,
     pub persistent_corners: usize,
     pub map_corners: usize,
+    /// 3D corners that may be corners (`UnsureConfig`), and the ignore
+    /// regions written (theirs and the teacher's unconfirmed detections).
+    pub unsure_corners: usize,
+    pub ignore_regions: usize,
+    /// The teacher's detections taken as labels (`teacher_label_score`).
+    pub teacher_labels: usize,
+    /// Whether a teacher detector marked ignore regions.
+    pub teacher: bool,
     /// Labels left out because a mapped surface hid them.
     pub hidden: usize,
     /// Whether hidden corners could be found (the run kept a point map).
@@ -314,7 +443,8 @@ pub struct LabelledImage {
 pub fn label_sequence(
     sequence: &dyn SensorSequence,
     run: &RunResult,
-    corners: &[LabelCorner],
+    corners: &RunCorners,
+    teacher: Option<&infer::detector::Detector>,
     config: &AutolabelConfig,
     show_progress: bool,
     mut keep: impl FnMut(LabelledImage) -> Result<()>,
@@ -341,27 +471,47 @@ pub fn label_sequence(
             return Ok(());
         }
         let world_from_camera = truth_at(trajectory, image.stamp) * robot_from_camera;
-        let labels = label_image(corners, &run.point_map, &calibration.camera, &world_from_camera, config);
+        let camera = &calibration.camera;
+        let depth = render_depth(&run.point_map, camera, &world_from_camera, config);
+        let mut labels = label_image(corners, depth.as_ref(), camera, &world_from_camera, config);
+        for d in teacher.map(|t| t.detect(&pixels)).unwrap_or_default() {
+            let [x, y] = d.bbox.centre();
+            let uv = [f64::from(x), f64::from(y)];
+            if config.unsure.teacher_label_score.is_some_and(|s| d.score >= s) {
+                labels.add_teacher(uv, config);
+            } else if d.score >= config.unsure.teacher_score {
+                labels.add_unsure(uv, config);
+            }
+        }
         keep(LabelledImage { name: image.name, stamp: image.stamp, image: pixels, labels })
     })?;
     bar.finish_and_clear();
     Ok(())
 }
 
-/// COCO annotations of one image's labels.
-pub fn annotations(labels: &[AutoLabel], image_id: u64, next_id: &mut u64) -> Vec<CocoAnnotation> {
-    labels
-        .iter()
-        .map(|l| {
-            *next_id += 1;
-            CocoAnnotation::corner(*next_id, image_id, &l.bbox, l.point, None)
-        })
-        .collect()
+/// COCO annotations of one image's labels, then its ignore regions.
+pub fn annotations(labels: &ImageLabels, image: &CocoImage, box_size: f32, next_id: &mut u64) -> Vec<CocoAnnotation> {
+    let (image_id, width, height) = (image.id, image.width as f32, image.height as f32);
+    let mut out = Vec::new();
+    for l in &labels.labels {
+        *next_id += 1;
+        out.push(CocoAnnotation::corner(*next_id, image_id, &l.bbox, l.point, None));
+    }
+    let around = |p: &[f64; 2]| BBox::around(p[0] as f32, p[1] as f32, box_size).clip(width, height);
+    for p in &labels.teacher {
+        *next_id += 1;
+        out.push(CocoAnnotation::corner(*next_id, image_id, &around(p), *p, Some("teacher")));
+    }
+    for p in &labels.unsure {
+        *next_id += 1;
+        out.push(CocoAnnotation::ignore_region(*next_id, image_id, &around(p)));
+    }
+    out
 }
 
 /// The train and test splits of the labelled images, in time order: the
 /// last `test_fraction` of them is the test split.
-pub fn splits(entries: &[(CocoImage, Vec<AutoLabel>)], test_fraction: f64) -> (CocoDataset, CocoDataset) {
+pub fn splits(entries: &[(CocoImage, ImageLabels)], test_fraction: f64, box_size: f32) -> (CocoDataset, CocoDataset) {
     let n = entries.len();
     let test = ((n as f64 * test_fraction).round() as usize).min(n.saturating_sub(1));
     let mut sets = [
@@ -371,57 +521,75 @@ pub fn splits(entries: &[(CocoImage, Vec<AutoLabel>)], test_fraction: f64) -> (C
     let mut next_id = 0;
     for (k, (image, labels)) in entries.iter().enumerate() {
         let set = &mut sets[usize::from(k >= n - test)];
-        set.annotations.extend(annotations(labels, image.id, &mut next_id));
+        set.annotations.extend(annotations(labels, image, box_size, &mut next_id));
         set.images.push(image.clone());
     }
     let [train, test] = sets;
     (train, test)
 }
 
-/// The labels drawn on the image: boxes and centres in green.
-pub fn draw(image: &DynamicImage, labels: &[AutoLabel]) -> image::RgbImage {
+/// The labels drawn on the image: boxes and centres in green (the
+/// teacher's in blue), ignore regions in orange.
+pub fn draw(image: &DynamicImage, labels: &ImageLabels, box_size: f32) -> image::RgbImage {
     let mut out = image.to_rgb8();
+    let rect = |b: &BBox| {
+        imageproc::rect::Rect::at(b.x1 as i32, b.y1 as i32)
+            .of_size(b.width().max(1.0) as u32, b.height().max(1.0) as u32)
+    };
+    for p in &labels.unsure {
+        let b = BBox::around(p[0] as f32, p[1] as f32, box_size);
+        imageproc::drawing::draw_hollow_rect_mut(&mut out, rect(&b), image::Rgb([250, 150, 30]));
+    }
     let colour = image::Rgb([40, 220, 60]);
-    for l in labels {
-        let b = l.bbox;
-        let rect = imageproc::rect::Rect::at(b.x1 as i32, b.y1 as i32)
-            .of_size(b.width().max(1.0) as u32, b.height().max(1.0) as u32);
-        imageproc::drawing::draw_hollow_rect_mut(&mut out, rect, colour);
+    for l in &labels.labels {
+        imageproc::drawing::draw_hollow_rect_mut(&mut out, rect(&l.bbox), colour);
         imageproc::drawing::draw_filled_circle_mut(&mut out, (l.point[0] as i32, l.point[1] as i32), 3, colour);
+    }
+    for p in &labels.teacher {
+        let b = BBox::around(p[0] as f32, p[1] as f32, box_size);
+        imageproc::drawing::draw_hollow_rect_mut(&mut out, rect(&b), image::Rgb([40, 120, 250]));
+        imageproc::drawing::draw_filled_circle_mut(&mut out, (p[0] as i32, p[1] as i32), 3, image::Rgb([40, 120, 250]));
     }
     out
 }
 
 /// Writes the `train --data` folder `out`: `images/`, `train.json`,
-/// `test.json`, `autolabel.json`, `preview/` (a few images with their labels
-/// drawn) and `corners.ply` (the persistent corners); returns the report.
+/// `test.json`, `points/` (each image's 3D labels as a point CSV, for
+/// `infer eval-points`), `autolabel.json`, `preview/` (a few images with
+/// their labels drawn) and `corners.ply` (the persistent corners); returns
+/// the report.
 pub fn write_autolabels(
     out: &Path,
     sequence: &dyn SensorSequence,
     run: &RunResult,
+    teacher: Option<&infer::detector::Detector>,
     config: &AutolabelConfig,
     truth: Option<&CocoDataset>,
     show_progress: bool,
 ) -> Result<AutolabelReport> {
     config.validate().map_err(|e| e.within("autolabel"))?;
-    let (corners, from_map) = label_corners(run, config);
+    let corners = label_corners(run, config);
     let camera = &sequence.calibration().camera;
     let mut report = None;
     datasets::atomic::write_dir(out, |dir| -> Result<()> {
-        let mut entries: Vec<(CocoImage, Vec<AutoLabel>)> = Vec::new();
+        let mut entries: Vec<(CocoImage, ImageLabels)> = Vec::new();
         let mut hidden = 0;
         let mut previews: BTreeMap<usize, (String, DynamicImage)> = BTreeMap::new();
-        label_sequence(sequence, run, &corners, config, show_progress, |l| {
+        label_sequence(sequence, run, &corners, teacher, config, show_progress, |l| {
             let file_name = format!("images/{}.png", l.name);
             datasets::atomic::write_image(&dir.join(&file_name), &l.image)?;
+            let points: Vec<[f64; 2]> = l.labels.labels.iter().map(|a| a.point).collect();
+            datasets::formats::write_point_labels(&dir.join(format!("points/{}.csv", l.name)), &points)?;
             hidden += l.labels.hidden;
             let id = entries.len() as u64 + 1;
             // Every 25th image is kept for the pictures (at most 8 of them, spread over the run below).
             if entries.len().is_multiple_of(25) {
-                previews
-                    .insert(entries.len(), (l.name.clone(), DynamicImage::ImageRgb8(draw(&l.image, &l.labels.labels))));
+                previews.insert(
+                    entries.len(),
+                    (l.name.clone(), DynamicImage::ImageRgb8(draw(&l.image, &l.labels, config.labels.box_size_px))),
+                );
             }
-            entries.push((CocoImage { id, file_name, width: camera.width, height: camera.height }, l.labels.labels));
+            entries.push((CocoImage { id, file_name, width: camera.width, height: camera.height }, l.labels));
             Ok(())
         })?;
         if entries.is_empty() {
@@ -429,22 +597,22 @@ pub fn write_autolabels(
                 "no image of the recording falls within the localized scans' times: nothing to label".into(),
             ));
         }
-        let (train, test) = splits(&entries, config.test_fraction);
+        let (train, test) = splits(&entries, config.test_fraction, config.labels.box_size_px);
         datasets::formats::write_coco(&dir.join("train.json"), &train)?;
         datasets::formats::write_coco(&dir.join("test.json"), &test)?;
         let step = previews.len().div_ceil(8).max(1);
         for (name, picture) in previews.values().step_by(step) {
             datasets::atomic::write_image(&dir.join("preview").join(format!("{name}.png")), picture)?;
         }
-        datasets::atomic::write_bytes(&dir.join("corners.ply"), &corners_ply(&corners))?;
-        let counts: Vec<f64> = entries.iter().map(|(_, l)| l.len() as f64).collect();
-        let errors: Vec<f64> = entries.iter().flat_map(|(_, l)| l.iter().map(|a| a.expected_error_px)).collect();
+        datasets::atomic::write_bytes(&dir.join("corners.ply"), &corners_ply(&corners.labels))?;
+        let counts: Vec<f64> = entries.iter().map(|(_, l)| l.labels.len() as f64).collect();
+        let errors: Vec<f64> = entries.iter().flat_map(|(_, l)| l.labels.iter().map(|a| a.expected_error_px)).collect();
         let against_truth = truth.map_or_else(Vec::new, |truth| {
             let labelled: Vec<(String, Vec<[f64; 2]>)> = entries
                 .iter()
                 .map(|(image, labels)| {
                     let name = Path::new(&image.file_name).file_stem().and_then(|s| s.to_str()).unwrap_or_default();
-                    (name.to_string(), labels.iter().map(|l| l.point).collect())
+                    (name.to_string(), labels.labels.iter().map(|l| l.point).collect())
                 })
                 .collect();
             [1.0, 2.0].map(|k| score_labels(&labelled, truth, k * config.match_radius_px)).to_vec()
@@ -456,8 +624,12 @@ pub fn write_autolabels(
             labels: errors.len(),
             labels_per_image: Spread::of(&counts),
             tracks: run.corner_tracks.as_ref().map_or(0, |t| t.tracks.len()),
-            persistent_corners: corners.len() - from_map,
-            map_corners: from_map,
+            persistent_corners: corners.labels.len() - corners.from_map,
+            map_corners: corners.from_map,
+            unsure_corners: corners.unsure.len(),
+            ignore_regions: entries.iter().map(|(_, l)| l.unsure.len()).sum(),
+            teacher_labels: entries.iter().map(|(_, l)| l.teacher.len()).sum(),
+            teacher: teacher.is_some(),
             hidden,
             occlusion_checked: !run.point_map.is_empty(),
             expected_error_px: Spread::of(&errors),
@@ -496,6 +668,7 @@ pub fn autolabel(
     out: &Path,
     sequence: &dyn SensorSequence,
     localize: &crate::config::LocalizeConfig,
+    teacher: Option<&infer::detector::Detector>,
     config: &AutolabelConfig,
     truth: Option<&CocoDataset>,
     show_progress: bool,
@@ -511,7 +684,7 @@ pub fn autolabel(
         map: None,
     };
     let run = crate::run::run_with(sequence, &mut crate::corner_source::CornerSource::Off, localize, options)?;
-    let report = write_autolabels(out, sequence, &run, config, truth, show_progress)?;
+    let report = write_autolabels(out, sequence, &run, teacher, config, truth, show_progress)?;
     let truth_trajectory = crate::run::truth_in_run_frame(sequence, &run);
     let metrics = crate::run::metrics_against(sequence, &run, truth_trajectory.as_ref())?;
     crate::run::write_outputs(&out.join("run"), localize, &run, truth_trajectory.as_ref(), metrics.as_ref())?;
@@ -559,16 +732,23 @@ mod tests {
         // Camera at the origin looking along +z. A corner 4 m ahead, 1 m right
         // and 0.5 m down; one straight ahead at 6 m behind a wall at 3 m; one
         // behind the camera; one outside the image.
-        let corners =
+        let points =
             [Vec3::new(1.0, 0.5, 4.0), Vec3::new(0.0, 0.0, 6.0), Vec3::new(0.0, 0.0, -3.0), Vec3::new(20.0, 0.0, 4.0)];
-        let tracks = tracks_of(&corners);
-        assert_eq!(tracks.len(), 4);
+        let labels = tracks_of(&points);
+        assert_eq!(labels.len(), 4);
+        // Unsure corners: one on the wall 2 m left of the axis, one 1 cm from the
+        // visible label (it is the label's), one behind the wall.
+        let unsure = [Vec3::new(-1.0, 0.0, 2.99), Vec3::new(1.0, 0.51, 4.0), Vec3::new(0.5, 0.0, 6.0)]
+            .map(|position| LabelCorner { position, sigma_m: 0.0 })
+            .to_vec();
+        let corners = RunCorners { labels, from_map: 0, unsure };
         let wall: Vec<MapPoint> = (-10..=10)
             .flat_map(|i| (-10..=10).map(move |j| (i, j)))
             .map(|(i, j)| MapPoint { position: Vec3::new(0.05 * i as f64, 0.05 * j as f64, 3.0), normal: -Vec3::z() })
             .collect();
         let config = AutolabelConfig::default();
-        let seen = label_image(&tracks, &wall, &camera(), &Pose3::identity(), &config);
+        let depth = render_depth(&wall, &camera(), &Pose3::identity(), &config);
+        let seen = label_image(&corners, depth.as_ref(), &camera(), &Pose3::identity(), &config);
         assert_eq!(seen.labels.len(), 1, "{seen:?}");
         assert_eq!(seen.hidden, 1);
         let l = &seen.labels[0];
@@ -577,9 +757,37 @@ mod tests {
         assert!((l.point[0] - 445.0).abs() < 1e-9 && (l.point[1] - 302.5).abs() < 1e-9, "{l:?}");
         assert!((l.depth_m - 4.0).abs() < 1e-12);
         assert_eq!(l.bbox.width(), 96.0);
+        // The wall's corner at u = 320 - 500 / 2.99 px is the one ignore region.
+        assert_eq!(seen.unsure.len(), 1, "{:?}", seen.unsure);
+        assert!((seen.unsure[0][0] - (320.0 - 500.0 / 2.99)).abs() < 1e-9, "{:?}", seen.unsure);
         // Without a point map nothing is hidden.
-        let unmapped = label_image(&tracks, &[], &camera(), &Pose3::identity(), &config);
-        assert_eq!((unmapped.labels.len(), unmapped.hidden), (2, 0));
+        assert!(render_depth(&[], &camera(), &Pose3::identity(), &config).is_none());
+        let unmapped = label_image(&corners, None, &camera(), &Pose3::identity(), &config);
+        assert_eq!((unmapped.labels.len(), unmapped.hidden, unmapped.unsure.len()), (2, 0, 2));
+    }
+
+    #[test]
+    fn ignore_regions_are_written_as_crowd_annotations_after_the_labels() {
+        let mut labels = ImageLabels::default();
+        let bbox = BBox::around(100.0, 100.0, 96.0);
+        labels.labels.push(AutoLabel { corner: 0, point: [100.0, 100.0], bbox, depth_m: 3.0, expected_error_px: 1.0 });
+        let config = AutolabelConfig::default();
+        labels.add_unsure([105.0, 100.0], &config);
+        labels.add_unsure([300.0, 200.0], &config);
+        labels.add_unsure([600.0, 20.0], &config);
+        assert_eq!(labels.unsure.len(), 2, "a teacher's detection 5 px from a label confirms it");
+        // A teacher's label takes the place of an ignore region beside it.
+        labels.add_teacher([603.0, 24.0], &config);
+        assert_eq!((labels.unsure.len(), labels.teacher.len()), (1, 1));
+        let mut next = 0;
+        let image = CocoImage { id: 4, file_name: "images/a.png".into(), width: 640, height: 480 };
+        let coco = annotations(&labels, &image, 96.0, &mut next);
+        let kinds: Vec<_> = coco.iter().map(|a| (a.id, a.iscrowd, a.corner_type.as_deref())).collect();
+        assert_eq!(kinds, [(1, 0, None), (2, 0, Some("teacher")), (3, 1, None)]);
+        // The teacher's box is clipped at the image's right edge.
+        assert_eq!(coco[1].bbox, [555.0, 0.0, 85.0, 72.0]);
+        assert_eq!(coco[2].bbox, [252.0, 152.0, 96.0, 96.0]);
+        assert_eq!(coco[2].point, None);
     }
 
     #[test]
@@ -612,14 +820,16 @@ mod tests {
 
     #[test]
     fn the_test_split_is_the_end_of_the_run() {
-        let entries: Vec<(CocoImage, Vec<AutoLabel>)> = (1..=10)
-            .map(|id| (CocoImage { id, file_name: format!("images/{id}.png"), width: 10, height: 10 }, Vec::new()))
+        let entries: Vec<(CocoImage, ImageLabels)> = (1..=10)
+            .map(|id| {
+                (CocoImage { id, file_name: format!("images/{id}.png"), width: 10, height: 10 }, ImageLabels::default())
+            })
             .collect();
-        let (train, test) = splits(&entries, 0.2);
+        let (train, test) = splits(&entries, 0.2, 96.0);
         assert_eq!(train.images.iter().map(|i| i.id).collect::<Vec<_>>(), (1..=8).collect::<Vec<_>>());
         assert_eq!(test.images.iter().map(|i| i.id).collect::<Vec<_>>(), vec![9, 10]);
         // One image stays in training whatever the fraction.
-        let (train, test) = splits(&entries[..1], 0.9);
+        let (train, test) = splits(&entries[..1], 0.9, 96.0);
         assert_eq!((train.images.len(), test.images.len()), (1, 0));
     }
 }

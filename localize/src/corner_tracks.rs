@@ -205,12 +205,18 @@ impl CornerTracks {
 
     /// The tracks seen often enough, from far enough apart, at one place.
     pub fn persistent(&self) -> Vec<CornerTrack> {
+        self.tracks.iter().filter(|t| self.persists(t)).cloned().collect()
+    }
+
+    /// The tracks seen in more than one scan that did not persist: maybe a
+    /// corner of the building seen too seldom, maybe one that moved.
+    pub fn passing(&self) -> Vec<CornerTrack> {
+        self.tracks.iter().filter(|t| t.scans >= 2 && !self.persists(t)).cloned().collect()
+    }
+
+    fn persists(&self, t: &CornerTrack) -> bool {
         let c = &self.config;
-        self.tracks
-            .iter()
-            .filter(|t| t.scans >= c.min_scans && t.baseline_m >= c.min_baseline_m && t.spread_m <= c.max_spread_m)
-            .cloned()
-            .collect()
+        t.scans >= c.min_scans && t.baseline_m >= c.min_baseline_m && t.spread_m <= c.max_spread_m
     }
 }
 
@@ -244,6 +250,8 @@ mod tests {
         assert!((kept[0].baseline_m - 1.9).abs() < 1e-9 && kept[0].spread_m < 0.01 && kept[0].spread_m > 0.0);
         // The walker's corners left at least ten tracks behind, none persistent.
         assert!(tracks.tracks.len() >= 11, "{}", tracks.tracks.len());
+        // Each seen once (it moves 20 cm a scan, beyond the gate): none passing either.
+        assert!(tracks.passing().is_empty());
     }
 
     #[test]
@@ -254,6 +262,7 @@ mod tests {
         }
         assert_eq!(tracks.tracks[0].scans, 30);
         assert!(tracks.persistent().is_empty(), "no baseline: a person standing still would pass");
+        assert_eq!(tracks.passing().len(), 1);
     }
 
     #[test]

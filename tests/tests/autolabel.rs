@@ -21,7 +21,11 @@ fn autolabels_of_a_generated_route_land_on_the_true_corners_and_train_reads_them
     let truth = datasets::formats::read_coco(&dir.path().join("sequence/labels.json")).unwrap();
     let out = dir.path().join("labels");
     let config = AutolabelConfig::default();
-    let (report, run) = autolabel(&out, &sequence, &LocalizeConfig::default(), &config, Some(&truth), false).unwrap();
+    let checkpoint = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../checkpoints/faster-rcnn");
+    let device = infer::backend::ComputeBackend::Flex.device().unwrap();
+    let teacher = infer::detector::Detector::load(&checkpoint, device).unwrap();
+    let localize = LocalizeConfig::default();
+    let (report, run) = autolabel(&out, &sequence, &localize, Some(&teacher), &config, Some(&truth), false).unwrap();
     // Every image of the 20 m is labelled, the last fifth held out for testing.
     assert_eq!(report.images, 40);
     assert_eq!((report.train_images, report.test_images), (32, 8));
@@ -42,6 +46,23 @@ fn autolabels_of_a_generated_route_land_on_the_true_corners_and_train_reads_them
     assert_eq!(train.images.len(), 32);
     assert!(out.join(&train.images[0].file_name).is_file());
     assert!(out.join("preview").read_dir().unwrap().count() >= 1);
+    // Where the 3D sensor cannot tell, the teacher's detections and the unsure
+    // corners are ignore regions, never within the match radius of a label,
+    // and the trainer reads them as such.
+    assert!(report.teacher && report.ignore_regions > 0, "{report:?}");
+    let crowd: Vec<_> = train.annotations.iter().filter(|a| a.iscrowd == 1).collect();
+    // (A region's box is clipped to the image; whole boxes are centred on their point.)
+    for region in crowd.iter().filter(|r| r.bbox[2] == 96.0 && r.bbox[3] == 96.0) {
+        let c = region.bbox().centre();
+        let near = train.annotations_of(region.image_id).filter(|a| a.iscrowd == 0).any(|a| {
+            let p = a.point.unwrap();
+            (p[0] - c[0]).hypot(p[1] - c[1]) <= config.match_radius_px as f32
+        });
+        assert!(!near, "{region:?}");
+    }
+    let loaded = infer::labeled::load_coco_set(&out.join("train.json"), &Default::default()).unwrap();
+    assert_eq!(loaded.iter().map(|im| im.ignore.len()).sum::<usize>(), crowd.len());
+    assert_eq!(loaded.iter().map(|im| im.truth.len()).sum::<usize>(), train.annotations.len() - crowd.len());
     assert!(out.join("run/trajectory.txt").is_file() && out.join("autolabel.json").is_file());
     let corners = datasets::formats::read_ply(&out.join("corners.ply"), datasets::formats::NonFinite::Reject).unwrap();
     assert_eq!(corners.len(), report.persistent_corners);
@@ -49,7 +70,7 @@ fn autolabels_of_a_generated_route_land_on_the_true_corners_and_train_reads_them
     let other = dir.path().join("other");
     std::fs::create_dir_all(&other).unwrap();
     std::fs::write(other.join("notes.txt"), "mine").unwrap();
-    let Err(refused) = autolabel(&other, &sequence, &LocalizeConfig::default(), &config, None, false) else {
+    let Err(refused) = autolabel(&other, &sequence, &localize, None, &config, None, false) else {
         panic!("a folder of other files was written into");
     };
     assert!(refused.to_string().contains("other") && refused.to_string().contains("earlier autolabel"), "{refused}");

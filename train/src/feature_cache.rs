@@ -9,7 +9,7 @@ use std::collections::HashMap;
 use burn::prelude::*;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::step::{Batch, batch_boxes, batch_inputs, make_batch};
+use crate::step::{Batch, batch_boxes, batch_ignore, batch_inputs, make_batch};
 use infer::labeled::LabeledImage;
 use infer::network::Network;
 
@@ -95,6 +95,7 @@ impl FeatureCache {
                 inputs: cache.features(ids, flips, device),
                 start: cache.start,
                 boxes: batch_boxes(&chosen, flips, size),
+                ignore: batch_ignore(&chosen, flips, size),
             },
             None => make_batch(&chosen, flips, size, device),
         }

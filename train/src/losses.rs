@@ -138,7 +138,7 @@ pub fn faster_rcnn_losses(
 }
 
 /// Grid losses: presence BCE averaged over all cells (positives weighted by
-/// `positive_weight`, since corners fill few cells), offset (on the squashed
+/// `positive_weight`, since corners fill few cells; ignored cells by 0), offset (on the squashed
 /// offsets) and size smooth L1 summed over positive cells per positive.
 pub fn grid_losses(out: &GridOutput, targets: &[GridTargets], positive_weight: f32) -> Losses {
     let device = out.cells.device();
@@ -146,7 +146,20 @@ pub fn grid_losses(out: &GridOutput, targets: &[GridTargets], positive_weight: f
     let n = b * s * s;
     let cells = out.cells.clone().reshape([n, v]);
     let presence: Vec<f32> = targets.iter().flat_map(|t| t.presence.iter().copied()).collect();
-    let weights: Vec<f32> = presence.iter().map(|&p| if p > 0.0 { positive_weight } else { 1.0 }).collect();
+    let ignored = targets.iter().flat_map(|t| t.ignored.iter().copied());
+    let weights: Vec<f32> = presence
+        .iter()
+        .zip(ignored)
+        .map(|(&p, ignored)| {
+            if p > 0.0 {
+                positive_weight
+            } else if ignored {
+                0.0
+            } else {
+                1.0
+            }
+        })
+        .collect();
     let logits = cells.clone().slice([0..n, 0..1]).reshape([n]);
     let presence_loss = (bce_with_logits(logits, float_tensor(presence.clone(), [n], &device))
         * float_tensor(weights, [n], &device))

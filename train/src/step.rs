@@ -21,11 +21,18 @@ pub struct Batch {
     pub inputs: Tensor<4>,
     pub start: usize,
     pub boxes: Vec<Vec<BBox>>,
+    /// Each image's ignore regions, in input pixels.
+    pub ignore: Vec<Vec<BBox>>,
 }
 
 /// Stacks images (flipped left-right where `flips` says so) into a batch.
 pub fn make_batch(images: &[&LabeledImage], flips: &[bool], size: u32, device: &Device) -> Batch {
-    Batch { inputs: batch_inputs(images, flips, device), start: 0, boxes: batch_boxes(images, flips, size) }
+    Batch {
+        inputs: batch_inputs(images, flips, device),
+        start: 0,
+        boxes: batch_boxes(images, flips, size),
+        ignore: batch_ignore(images, flips, size),
+    }
 }
 
 /// The images' network inputs as a `[B, C, S, S]` tensor, mirrored where flipped.
@@ -40,14 +47,19 @@ pub fn batch_inputs(images: &[&LabeledImage], flips: &[bool], device: &Device) -
 
 /// The images' boxes in input pixels, mirrored where flipped.
 pub fn batch_boxes(images: &[&LabeledImage], flips: &[bool], size: u32) -> Vec<Vec<BBox>> {
+    mirrored(images.iter().map(|im| im.net_boxes(size)), flips, size)
+}
+
+/// The images' ignore regions in input pixels, mirrored where flipped.
+pub fn batch_ignore(images: &[&LabeledImage], flips: &[bool], size: u32) -> Vec<Vec<BBox>> {
+    mirrored(images.iter().map(|im| im.net_ignore(size)), flips, size)
+}
+
+fn mirrored(boxes: impl Iterator<Item = Vec<BBox>>, flips: &[bool], size: u32) -> Vec<Vec<BBox>> {
     let s = size as f32;
-    images
-        .iter()
+    boxes
         .zip(flips)
-        .map(|(im, &flip)| {
-            let b = im.net_boxes(size);
-            if flip { b.iter().map(|b| BBox::new(s - b.x2, b.y1, s - b.x1, b.y2)).collect() } else { b }
-        })
+        .map(|(b, &flip)| if flip { b.iter().map(|b| BBox::new(s - b.x2, b.y1, s - b.x1, b.y2)).collect() } else { b })
         .collect()
 }
 
@@ -63,8 +75,12 @@ pub fn batch_losses(network: &Network, config: &DetectorConfig, batch: &Batch, r
             let rpn = m.rpn(features.clone());
             let [b, n] = rpn.objectness.dims();
             let anchors = faster_rcnn::anchors_for(&config.anchors, rpn.grid_h, rpn.grid_w);
-            let rpn_t: Vec<_> =
-                batch.boxes.iter().map(|truth| rpn_targets(&anchors, truth, &config.rpn, rng)).collect();
+            let rpn_t: Vec<_> = batch
+                .boxes
+                .iter()
+                .zip(&batch.ignore)
+                .map(|(truth, ignore)| rpn_targets(&anchors, truth, ignore, &config.rpn, rng))
+                .collect();
             let objectness = infer::host(rpn.objectness.clone());
             let deltas = infer::host(rpn.deltas.clone());
             let settings = config.rpn.proposals(true);
@@ -78,7 +94,7 @@ pub fn batch_losses(network: &Network, config: &DetectorConfig, batch: &Batch, r
                         settings,
                     );
                     let classes = vec![0; batch.boxes[i].len()];
-                    roi_targets(&proposals, &batch.boxes[i], &classes, &config.roi, rng)
+                    roi_targets(&proposals, &batch.boxes[i], &classes, &batch.ignore[i], &config.roi, rng)
                 })
                 .collect();
             let rois: Vec<Vec<BBox>> = roi_t.iter().map(|t| t.rois.clone()).collect();
@@ -88,8 +104,12 @@ pub fn batch_losses(network: &Network, config: &DetectorConfig, batch: &Batch, r
         }
         Network::Grid(m) => {
             let out = m.head(m.trunk_from(batch.inputs.clone(), batch.start));
-            let targets: Vec<_> =
-                batch.boxes.iter().map(|truth| grid_targets(truth, config.grid_cells, size)).collect();
+            let targets: Vec<_> = batch
+                .boxes
+                .iter()
+                .zip(&batch.ignore)
+                .map(|(truth, ignore)| grid_targets(truth, ignore, config.grid_cells, size))
+                .collect();
             grid_losses(&out, &targets, GRID_POSITIVE_WEIGHT)
         }
     }
@@ -108,7 +128,7 @@ pub fn synthetic_batch(config: &DetectorConfig, batch: usize, device: &Device) -
             NetInput { planes: vec![plane; config.in_channels] }
         })
         .collect();
-    let boxes = (0..batch)
+    let boxes: Vec<Vec<BBox>> = (0..batch)
         .map(|i| {
             (0..6)
                 .map(|k| {
@@ -118,5 +138,5 @@ pub fn synthetic_batch(config: &DetectorConfig, batch: usize, device: &Device) -
                 .collect()
         })
         .collect();
-    Batch { inputs: input_tensor(&inputs, device), start: 0, boxes }
+    Batch { inputs: input_tensor(&inputs, device), start: 0, ignore: vec![Vec::new(); boxes.len()], boxes }
 }

@@ -61,6 +61,23 @@ impl CocoAnnotation {
     }
 }
 
+impl CocoAnnotation {
+    /// A region that may or may not hold a corner (`iscrowd` 1): trainers
+    /// leave it out of both classes and evaluation does not count detections there.
+    pub fn ignore_region(id: u64, image_id: u64, bbox: &BBox) -> Self {
+        Self {
+            id,
+            image_id,
+            category_id: 1,
+            bbox: bbox.to_xywh(),
+            area: bbox.area(),
+            iscrowd: 1,
+            corner_type: None,
+            point: None,
+        }
+    }
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CocoCategory {
     pub id: u64,
@@ -109,6 +126,9 @@ impl CocoDataset {
             }
             if !categories.contains(&a.category_id) {
                 return invalid(format!("annotation {} refers to unknown category {}", a.id, a.category_id));
+            }
+            if a.iscrowd > 1 {
+                return invalid(format!("annotation {} has iscrowd {} (0 or 1)", a.id, a.iscrowd));
             }
             let [x, y, w, h] = a.bbox;
             if !a.bbox().is_finite() || w < 0.0 || h < 0.0 {

@@ -19,7 +19,7 @@ pub use coco::{CocoAnnotation, CocoCategory, CocoDataset, CocoImage, corner_cate
 pub use depth_image::{DepthImage, read_depth_png};
 pub use pcd::{PcdData, read_pcd, write_pcd};
 pub use ply::{PlyFormat, read_ply, write_ply};
-pub use point_labels::{CocoHalves, PointLabel, coco_halves, labelled_photos, read_point_labels};
+pub use point_labels::{CocoHalves, PointLabel, coco_halves, labelled_photos, read_point_labels, write_point_labels};
 pub use sensor_csv::{ImuSample, OdometrySample, read_imu, read_odometry, write_imu, write_odometry};
 pub use stamped_files::{CLOUD_EXTENSIONS, IMAGE_EXTENSIONS, stamped_files};
 pub use trajectory::{Trajectory, TrajectoryFormat, read_trajectory, read_tum, write_tum};

@@ -47,6 +47,16 @@ pub fn read_point_labels(path: &Path) -> Result<Vec<PointLabel>> {
     Ok(labels)
 }
 
+/// Writes points given in box coordinates as a point-label CSV (`x,y`,
+/// MATLAB's pixel convention), the file `read_point_labels` reads back.
+pub fn write_point_labels(path: &Path, points: &[[f64; 2]]) -> Result<()> {
+    let mut text = String::from("x,y\n");
+    for p in points {
+        text.push_str(&format!("{},{}\n", p[0] + 0.5, p[1] + 0.5));
+    }
+    crate::atomic::write_bytes(path, text.as_bytes())
+}
+
 /// The photographs (.jpg, .jpeg, .png) of `images` that have a `NAME.csv` in
 /// `points`, each with that file, sorted by path. None is an error.
 pub fn labelled_photos(images: &Path, points: &Path) -> Result<Vec<(PathBuf, PathBuf)>> {
@@ -142,6 +152,10 @@ mod tests {
         std::fs::write(&bad, "x,y,type\n1,2,L\n3,nan,T\n").unwrap();
         let message = read_point_labels(&bad).unwrap_err().to_string();
         assert!(message.contains("bad.csv") && message.contains("line 3") && message.contains("y `nan`"), "{message}");
+        let written = dir.path().join("written.csv");
+        write_point_labels(&written, &[[247.94, 279.22], [0.0, 12.25]]).unwrap();
+        let back: Vec<[f32; 2]> = read_point_labels(&written).unwrap().into_iter().map(|l| l.point).collect();
+        assert_eq!(back, [[247.94, 279.22], [0.0, 12.25]]);
         let headless = dir.path().join("headless.csv");
         std::fs::write(&headless, "1,2\n").unwrap();
         assert!(read_point_labels(&headless).unwrap_err().to_string().contains("header"));

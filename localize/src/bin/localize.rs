@@ -237,6 +237,15 @@ struct AutolabelArgs {
     /// Autolabel settings as JSON (any subset; see autolabel.json of a run).
     #[arg(long)]
     autolabel_config: Option<PathBuf>,
+    /// A detector whose confident detections that no 3D corner confirms are
+    /// marked "unsure" (COCO ignore regions) rather than left as background.
+    #[arg(long, default_value = "checkpoints/faster-rcnn", conflicts_with = "without_teacher")]
+    teacher: PathBuf,
+    /// No teacher: only the 3D sensor's unsure corners become ignore regions.
+    #[arg(long)]
+    without_teacher: bool,
+    #[arg(long, value_enum, default_value_t = infer::backend::ComputeBackend::Flex)]
+    backend: infer::backend::ComputeBackend,
 }
 
 #[derive(clap::Args)]
@@ -587,10 +596,22 @@ fn autolabel(args: &AutolabelArgs) -> Result<()> {
     };
     // The camera's images are labelled (and an RGB-D camera's edges register); only the detector is left out.
     let (sequence, localize_config, sensors) = open_input(&args.input, true, SensorFaults::default())?;
+    let teacher = if args.without_teacher {
+        None
+    } else {
+        Some(infer::detector::Detector::load(&args.teacher, args.backend.device()?)?)
+    };
     let config = overlay(AutolabelConfig::for_range(sensors.range))?;
     let progress = !std::env::var("CI").is_ok_and(|v| v == "true");
-    let (report, run) =
-        localize::autolabel::autolabel(&args.out, &*sequence, &localize_config, &config, truth.as_ref(), progress)?;
+    let (report, run) = localize::autolabel::autolabel(
+        &args.out,
+        &*sequence,
+        &localize_config,
+        teacher.as_ref(),
+        &config,
+        truth.as_ref(),
+        progress,
+    )?;
     println!(
         "{} images ({} train, {} test), {} labels: {:.1} per image (median {}, {} to {}); {} persistent corners of {} \
          followed over the scans and {} more in the map, {} labels hidden by the map{}",
