@@ -79,11 +79,6 @@ impl DepthBuffer {
         Self { cell_px: cell, columns, rows, depth }
     }
 
-    /// Image pixels per cell, each way.
-    pub fn cell_px(&self) -> f64 {
-        self.cell_px
-    }
-
     /// The nearest surface's depth at pixel `uv` (infinite where nothing was drawn).
     pub fn at(&self, uv: [f64; 2]) -> f64 {
         let (c, r) = ((uv[0] / self.cell_px).floor(), (uv[1] / self.cell_px).floor());
