@@ -1,6 +1,6 @@
 //! The backends the project can run on, chosen with `--backend`. `flex` is the
-//! default because it measured fastest on the CPU (see the README's backend
-//! table) and the project's own CPU kernels are written for it; `ndarray`
+//! default because it measured fastest on the CPU (see the backend
+//! table of docs/speed.md) and the project's own CPU kernels are written for it; `ndarray`
 //! stays selectable. `wgpu` runs on a GPU through Burn's wgpu backend (Vulkan,
 //! Metal or DX12) and is compiled in only with the `wgpu` feature of this crate,
 //! so the default build does not pay for it.

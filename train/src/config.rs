@@ -91,8 +91,8 @@ fn yes() -> bool {
 /// Peak learning rate when every layer starts from a trained detector (a
 /// checkpoint folder as `pretrained`): a fifth of the from-trunk default,
 /// because the from-trunk rate moves a detector that already fits away from
-/// what it knows (the validation losses of both are in the README, Transfer
-/// learning and comparing runs).
+/// what it knows (the validation losses of both are in docs/detectors.md,
+/// Transfer learning and comparing runs).
 pub const WHOLE_NETWORK_LR: f64 = 2e-4;
 
 /// The most epochs a run may ask for.
@@ -101,7 +101,7 @@ pub const MAX_EPOCHS: usize = 10_000;
 pub const MAX_BATCH: usize = 4096;
 
 impl TrainConfig {
-    /// Defaults measured to work on the default data (see the README).
+    /// Defaults measured to work on the default data (see docs/detectors.md).
     pub fn new(backbone: Backbone, width: f32, data: PathBuf) -> Self {
         let (epochs, lr) = match backbone {
             Backbone::FasterRcnn => (24, 1e-3),

@@ -3,7 +3,7 @@
 //! batch 8 of 224x224) with Burn's flex convolution kernels and with the
 //! project's GEMM kernels: images per second and the CPU cores in use. The
 //! models, batch, loss and optimizer are those of the PyTorch script the
-//! README compares against (forward + cross-entropy + backward + Adam 1e-4).
+//! speed page (docs/speed.md) compares against (forward + cross-entropy + backward + Adam 1e-4).
 //! "Burn" is Burn 0.22.1 as it comes (flex convolutions, Burn's Adam);
 //! "project" adds the GEMM convolution kernels and the fused AdamW (weight
 //! decay 0, which is Adam).
