@@ -31,19 +31,44 @@ fn eval_json_has_the_documented_keys_and_evo_numbers() {
 }
 
 #[test]
-fn planes_json_gives_unit_normals_and_nonnegative_distances() {
-    let out = localize(&["planes", "--json", &shared("pcl_room_scans/room_scan2.pcd")]);
+fn planes_json_gives_the_rooms_floor_ceiling_and_walls() {
+    let out = localize(&["planes", "--json", &shared("pcl_room_scans/room_scan1.pcd")]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    let planes = v["planes"].as_array().unwrap();
-    assert!(planes.len() >= 4);
-    for p in planes {
-        let n: Vec<f64> = p["normal"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
+    let planes: Vec<([f64; 3], f64, u64)> = v["planes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| {
+            let n: Vec<f64> = p["normal"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
+            ([n[0], n[1], n[2]], p["distance"].as_f64().unwrap(), p["inliers"].as_u64().unwrap())
+        })
+        .collect();
+    for (n, d, inliers) in &planes {
         assert!(((n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt() - 1.0).abs() < 1e-9);
-        assert!(p["distance"].as_f64().unwrap() >= 0.0);
-        assert!(p["inliers"].as_u64().unwrap() > 0);
+        assert!(*d >= 0.0 && *inliers > 0);
     }
-    assert!(v["corners"].as_array().unwrap().iter().all(|c| c["position"].as_array().unwrap().len() == 3));
+    // The data's README: floor at z = -1.27 m, ceiling at +1.68 m (as the
+    // library's geometry test finds them), the room 4.5 m wide along y.
+    let horizontal = |d: f64| planes.iter().any(|(n, dist, _)| n[2].abs() > 0.999 && (dist - d).abs() < 0.05);
+    assert!(horizontal(1.27) && horizontal(1.66), "{planes:?}");
+    let wall = |sign: f64| {
+        planes.iter().find(|(n, _, inliers)| n[1] * sign > 0.99 && *inliers > 1000).map(|p| p.1).expect("a wall")
+    };
+    assert!((wall(1.0) + wall(-1.0) - 4.5).abs() < 0.1, "{planes:?}");
+    // Each corner names three distinct planes of the list and lies on all three.
+    let corners = v["corners"].as_array().unwrap();
+    assert!(!corners.is_empty());
+    for c in corners {
+        let ids: Vec<usize> = c["planes"].as_array().unwrap().iter().map(|i| i.as_u64().unwrap() as usize).collect();
+        assert!(ids.len() == 3 && ids[0] != ids[1] && ids[1] != ids[2] && ids[0] != ids[2], "{c}");
+        let p: Vec<f64> = c["position"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
+        for &i in &ids {
+            let (n, d, _) = planes[i];
+            let off = n[0] * p[0] + n[1] * p[1] + n[2] * p[2] - d;
+            assert!(off.abs() < 1e-6, "corner {c} is {off} m off plane {i}");
+        }
+    }
 }
 
 #[test]
