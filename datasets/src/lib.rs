@@ -2,9 +2,6 @@
 //! the shared preprocessing, the camera model and the synthetic multilevel
 //! world with its sensors.
 
-// Settings are validated as `!(x > lo)` on purpose: a NaN then fails the check.
-#![allow(clippy::neg_cmp_op_on_partial_ord)]
-
 pub mod atomic;
 pub mod bbox;
 pub mod camera;
@@ -21,6 +18,7 @@ pub mod math;
 pub mod plot;
 pub mod preprocess;
 pub mod recording;
+pub mod settings_file;
 pub mod undistort;
 pub mod world;
 

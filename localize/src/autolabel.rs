@@ -110,9 +110,7 @@ impl AutolabelConfig {
 
     /// `self` with a settings file's JSON over it, checked.
     pub fn overlaid(&self, file: &serde_json::Value) -> std::result::Result<Self, String> {
-        let mut merged = serde_json::to_value(self).map_err(|e| e.to_string())?;
-        crate::config::merge_json(&mut merged, file);
-        let config: Self = serde_json::from_value(merged).map_err(|e| e.to_string())?;
+        let config = datasets::settings_file::overlay(self, file)?;
         config.validate().map_err(|e| e.to_string())?;
         Ok(config)
     }

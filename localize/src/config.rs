@@ -60,9 +60,7 @@ impl LocalizeConfig {
     /// `self` with the settings of a `--config` file's JSON over it (fields
     /// the file leaves out keep `self`'s), checked.
     pub fn overlaid(&self, file: &serde_json::Value) -> Result<Self, String> {
-        let mut merged = serde_json::to_value(self).map_err(|e| e.to_string())?;
-        merge_json(&mut merged, file);
-        let config: Self = serde_json::from_value(merged).map_err(|e| e.to_string())?;
+        let config = datasets::settings_file::overlay(self, file)?;
         config.validate().map_err(|e| e.to_string())?;
         Ok(config)
     }
@@ -149,24 +147,6 @@ impl LocalizeConfig {
         self.relocalize.validate().map_err(|e| e.within("relocalize"))?;
         self.depth.validate().map_err(|e| e.within("depth"))?;
         self.level_floor.validate().map_err(|e| e.within("level_floor"))
-    }
-}
-
-/// `over`'s fields laid over `base`'s, objects merged field by field: a
-/// settings file need only name what it changes.
-pub fn merge_json(base: &mut serde_json::Value, over: &serde_json::Value) {
-    match (base, over) {
-        (serde_json::Value::Object(b), serde_json::Value::Object(o)) => {
-            for (key, value) in o {
-                match b.get_mut(key) {
-                    Some(slot) => merge_json(slot, value),
-                    None => {
-                        b.insert(key.clone(), value.clone());
-                    }
-                }
-            }
-        }
-        (slot, value) => *slot = value.clone(),
     }
 }
 

@@ -2,9 +2,6 @@
 //! detector cast into them, corner landmarks, the pose that aligns them with
 //! an odometry/IMU prior, and trajectory metrics.
 
-// Settings are validated as `!(x > lo)` on purpose: a NaN then fails the check.
-#![allow(clippy::neg_cmp_op_on_partial_ord)]
-
 pub mod autolabel;
 pub mod bag_sequence;
 pub mod benchmark;

@@ -137,3 +137,61 @@ fn a_relative_data_folder_is_kept_absolute_so_a_resume_from_elsewhere_finds_it()
     let kept = std::path::PathBuf::from(settings["data"].as_str().unwrap());
     assert!(kept.is_absolute() && kept == *data, "{kept:?} vs {data:?}");
 }
+
+#[test]
+fn a_config_file_lies_over_the_defaults_and_flags_over_it() {
+    let data = common::tiny_data();
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("settings.json");
+    // A subset of a run's train_config.json: epochs the flag replaces, the rest kept.
+    std::fs::write(&file, r#"{"epochs": 5, "seed": 7, "weight_decay": 0.0, "detector": {"hidden": 96}}"#).unwrap();
+    let run = dir.path().join("run");
+    let train = |args: &[&str]| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_train"))
+            .args(["--backbone", "alexnet", "--data", data.to_str().unwrap(), "--width", "0.125"])
+            .args(args)
+            .env("CI", "true")
+            .output()
+            .unwrap()
+    };
+    let out = train(&[
+        "--config",
+        file.to_str().unwrap(),
+        "--epochs",
+        "1",
+        "--batch-size",
+        "2",
+        "--out",
+        run.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let written: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.join("train_config.json")).unwrap()).unwrap();
+    assert_eq!((written["epochs"].as_u64(), written["seed"].as_u64()), (Some(1), Some(7)));
+    assert_eq!((written["batch_size"].as_u64(), written["weight_decay"].as_f64()), (Some(2), Some(0.0)));
+    assert_eq!(written["detector"]["hidden"].as_u64(), Some(96));
+    // Alexnet's default peak learning rate, which the file did not name.
+    assert_eq!(written["lr"].as_f64(), Some(2e-3));
+    // A field the settings do not have, and a detector of another backbone, are named.
+    std::fs::write(&file, r#"{"epocs": 5}"#).unwrap();
+    let other = dir.path().join("other");
+    let message =
+        String::from_utf8_lossy(&train(&["--config", file.to_str().unwrap(), "--out", other.to_str().unwrap()]).stderr)
+            .into_owned();
+    assert!(message.contains("settings.json") && message.contains("unknown field `epocs`"), "{message}");
+    std::fs::copy(run.join("train_config.json"), &file).unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_train"))
+        .args(["--backbone", "vgg16", "--data", data.to_str().unwrap(), "--config", file.to_str().unwrap()])
+        .args(["--out", other.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let message = String::from_utf8_lossy(&out.stderr);
+    assert!(message.contains("backbone is alexnet, but --backbone is vgg16"), "{message}");
+    assert!(!other.exists(), "nothing written");
+    // --resume takes its settings from the run: a file is refused beside it.
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_train"))
+        .args(["--resume", run.to_str().unwrap(), "--config", file.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("--config"));
+}

@@ -466,10 +466,7 @@ fn read_config(path: Option<&Path>) -> Result<LocalizeConfig> {
 
 /// A `--config` file's JSON, to lay over the defaults that apply.
 fn read_config_file(path: Option<&Path>) -> Result<Option<serde_json::Value>> {
-    let Some(path) = path else { return Ok(None) };
-    let text = datasets::atomic::read_text(path)?;
-    let file = serde_json::from_str(&text).with_context(|| format!("{}: not a JSON settings file", path.display()))?;
-    Ok(Some(file))
+    Ok(path.map(datasets::settings_file::read).transpose()?)
 }
 
 fn config_error(path: Option<&Path>, message: &str) -> anyhow::Error {

@@ -13,6 +13,20 @@ use train::{OptimizerKind, TrainConfig};
 #[derive(Debug, Parser)]
 #[command(name = "train", version, allow_negative_numbers = true)]
 struct Args {
+    /// Continue the run in this folder from its last completed epoch, with
+    /// the settings in its train_config.json (flags that would change them
+    /// are refused: a resumed run ends as the uninterrupted one would).
+    #[arg(long, conflicts_with = "settings")]
+    resume: Option<PathBuf>,
+    #[command(flatten)]
+    settings: SettingsArgs,
+}
+
+/// A new run's settings: the defaults of the backbone (`TrainConfig::new`),
+/// then the `--config` file, then these flags.
+#[derive(Debug, clap::Args)]
+#[group(id = "settings", multiple = true)]
+struct SettingsArgs {
     #[arg(long, value_enum, required_unless_present = "resume")]
     backbone: Option<Backbone>,
     /// A `datagen` detection folder (train.json, test.json, images/).
@@ -21,30 +35,29 @@ struct Args {
     /// Run folder: settings, loss log, checkpoints, metrics.
     #[arg(long, required_unless_present = "resume")]
     out: Option<PathBuf>,
-    /// Continue the run in this folder from its last completed epoch, with
-    /// the settings in its config.json (flags that would change them are
-    /// refused: a resumed run ends as the uninterrupted one would).
-    #[arg(long, conflicts_with_all = [
-        "backbone", "data", "out", "epochs", "batch_size", "optimizer", "lr", "seed", "width", "no_augment",
-        "adaptive_canny", "gray_channel", "backend", "hidden", "grid_head", "pretrained", "pretrained_input", "pretrained_prune", "freeze", "no_cache",
-    ])]
-    resume: Option<PathBuf>,
+    /// Settings as JSON: any subset of a run's train_config.json (its `data`
+    /// and the detector's backbone stay those of the flags).
+    #[arg(long)]
+    config: Option<PathBuf>,
     /// Epochs (default: 24 for faster-rcnn and vgg16, 40 for alexnet).
     #[arg(long, value_parser = datasets::cli::positive_count)]
     epochs: Option<usize>,
-    #[arg(long, default_value_t = 8, value_parser = datasets::cli::positive_count)]
-    batch_size: usize,
-    #[arg(long, value_enum, default_value_t = OptimizerKind::Adam)]
-    optimizer: OptimizerKind,
+    /// Images a step (default 8).
+    #[arg(long, value_parser = datasets::cli::positive_count)]
+    batch_size: Option<usize>,
+    /// Default: adam.
+    #[arg(long, value_enum)]
+    optimizer: Option<OptimizerKind>,
     /// Peak learning rate (default: 1e-3 for faster-rcnn and vgg16, 2e-3 for
     /// alexnet; 2e-4 when --pretrained is a whole checkpoint).
     #[arg(long, value_parser = datasets::cli::positive)]
     lr: Option<f64>,
-    #[arg(long, default_value_t = 42)]
-    seed: u64,
-    /// Channel multiplier; 1.0 is torchvision's full network.
-    #[arg(long, default_value_t = DEFAULT_WIDTH)]
-    width: f32,
+    /// Default 42.
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Channel multiplier; 1.0 is torchvision's full network (default 0.25).
+    #[arg(long)]
+    width: Option<f32>,
     /// Turn off the random left-right flips.
     #[arg(long)]
     no_augment: bool,
@@ -60,15 +73,17 @@ struct Args {
     /// channel's weights at zero.
     #[arg(long)]
     gray_channel: bool,
-    #[arg(long, value_enum, default_value_t)]
-    backend: ComputeBackend,
+    /// Default: flex.
+    #[arg(long, value_enum)]
+    backend: Option<ComputeBackend>,
     /// Width of the fully connected layers (default: 4096 x width^2, at least 64).
     #[arg(long, value_parser = datasets::cli::positive_count)]
     hidden: Option<usize>,
-    /// Head of vgg16 and alexnet: convolutional (one output per cell), or
-    /// torchvision's fully connected classifier with its last layer replaced.
-    #[arg(long, value_enum, default_value_t)]
-    grid_head: GridHead,
+    /// Head of vgg16 and alexnet: convolutional (one output per cell, the
+    /// default), or torchvision's fully connected classifier with its last
+    /// layer replaced.
+    #[arg(long, value_enum)]
+    grid_head: Option<GridHead>,
     /// Start from these weights. A file starts the trunk: torchvision-named
     /// `.pth`/`.pt` or `.safetensors` (VGG16, AlexNet, HED), or a trunk
     /// written by `pretrain`. A checkpoint folder of the same backbone and
@@ -76,19 +91,79 @@ struct Args {
     /// e.g. `pretrain`'s `detector/`).
     #[arg(long)]
     pretrained: Option<PathBuf>,
-    /// How the pretrained network expected its input.
-    #[arg(long, value_enum, default_value_t, requires = "pretrained")]
-    pretrained_input: InputConvention,
+    /// How the pretrained network expected its input (default: auto).
+    #[arg(long, value_enum, requires = "pretrained")]
+    pretrained_input: Option<InputConvention>,
     /// When the pretrained trunk is wider than --width, keep each layer's
     /// strongest filters (largest L1 norm) instead of refusing it.
     #[arg(long, requires = "pretrained")]
     pretrained_prune: bool,
-    /// Keep the first N trunk convolutions at their starting weights.
-    #[arg(long, default_value_t = 0, value_parser = datasets::cli::count)]
-    freeze: usize,
+    /// Keep the first N trunk convolutions at their starting weights (default 0).
+    #[arg(long, value_parser = datasets::cli::count)]
+    freeze: Option<usize>,
     /// Run the frozen layers on every step instead of caching their outputs.
     #[arg(long)]
     no_cache: bool,
+}
+
+impl SettingsArgs {
+    /// The run's settings: defaults, the file, the flags; checked.
+    fn resolve(&self, backbone: Backbone, data: PathBuf) -> Result<TrainConfig> {
+        let mut c = TrainConfig::new(backbone, self.width.unwrap_or(DEFAULT_WIDTH), data.clone());
+        if let Some(p) = &self.pretrained {
+            if !p.exists() {
+                bail!("--pretrained {}: no such file or checkpoint folder", p.display());
+            }
+            c.start_from(train::Start::from_path(p.clone()));
+        }
+        if let Some(path) = &self.config {
+            let file = datasets::settings_file::read(path)?;
+            c = datasets::settings_file::overlay(&c, &file)
+                .map_err(|m| anyhow::anyhow!("{}: not a training config: {m}", path.display()))?;
+            if c.detector.backbone != backbone {
+                bail!(
+                    "{}: its detector's backbone is {}, but --backbone is {backbone}",
+                    path.display(),
+                    c.detector.backbone
+                );
+            }
+            c.data = data;
+        }
+        if let Some(width) = self.width {
+            c.detector.width = width;
+        }
+        if let Some(e) = self.epochs {
+            c.epochs = e;
+        }
+        set(&mut c.batch_size, self.batch_size);
+        set(&mut c.optimizer, self.optimizer);
+        set(&mut c.seed, self.seed);
+        set(&mut c.backend, self.backend);
+        set(&mut c.detector.hidden, self.hidden);
+        set(&mut c.detector.grid_head, self.grid_head);
+        set(&mut c.lr, self.lr);
+        set(&mut c.pretrained_input, self.pretrained_input);
+        set(&mut c.freeze, self.freeze);
+        c.augment &= !self.no_augment;
+        c.pretrained_prune |= self.pretrained_prune;
+        c.cache_frozen &= !self.no_cache;
+        if self.adaptive_canny {
+            c.detector.preprocess.adaptive_canny = Some(Default::default());
+        }
+        if self.gray_channel {
+            c.detector.set_gray_channel(true);
+        }
+        // Settings are checked before the run folder exists.
+        c.validate().map_err(train::TrainError::Settings)?;
+        Ok(c)
+    }
+}
+
+/// A flag given replaces the setting.
+fn set<T>(slot: &mut T, flag: Option<T>) {
+    if let Some(value) = flag {
+        *slot = value;
+    }
 }
 
 fn main() -> std::process::ExitCode {
@@ -99,7 +174,8 @@ fn main() -> std::process::ExitCode {
 
 fn run_main() -> Result<()> {
     let args = Args::parse();
-    let (config, run) = match (&args.resume, args.backbone, &args.data, &args.out) {
+    let flags = &args.settings;
+    let (config, run) = match (&args.resume, flags.backbone, &flags.data, &flags.out) {
         (Some(run), ..) => (None, run.clone()),
         (None, Some(backbone), Some(data), Some(out)) => {
             if !data.is_dir() {
@@ -128,42 +204,7 @@ fn run_main() -> Result<()> {
             }
             // Kept absolute: `--resume` may run from another working directory.
             let data = std::path::absolute(data).map_err(|e| datasets::DataError::io(data, e))?;
-            let mut c = TrainConfig::new(backbone, args.width, data);
-            if let Some(e) = args.epochs {
-                c.epochs = e;
-            }
-            c.batch_size = args.batch_size;
-            c.optimizer = args.optimizer;
-            c.seed = args.seed;
-            c.augment = !args.no_augment;
-            if args.adaptive_canny {
-                c.detector.preprocess.adaptive_canny = Some(Default::default());
-            }
-            c.detector.set_gray_channel(args.gray_channel);
-            c.backend = args.backend;
-            if let Some(h) = args.hidden {
-                c.detector.hidden = h;
-            }
-            c.detector.grid_head = args.grid_head;
-            if let Some(p) = &args.pretrained
-                && !p.exists()
-            {
-                bail!("--pretrained {}: no such file or checkpoint folder", p.display());
-            }
-            if let Some(p) = &args.pretrained {
-                c.start_from(train::Start::from_path(p.clone()));
-            }
-            // An explicit --lr wins over the start's default.
-            if let Some(lr) = args.lr {
-                c.lr = lr;
-            }
-            c.pretrained_input = args.pretrained_input;
-            c.pretrained_prune = args.pretrained_prune;
-            c.freeze = args.freeze;
-            c.cache_frozen = !args.no_cache;
-            // Settings are checked before the run folder exists.
-            c.validate().map_err(train::TrainError::Settings)?;
-            (Some(c), out.clone())
+            (Some(flags.resolve(backbone, data)?), out.clone())
         }
         _ => bail!("give --backbone, --data and --out, or --resume RUN_DIR"),
     };
