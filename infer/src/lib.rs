@@ -13,6 +13,7 @@ pub mod conv_op;
 pub mod corner_response;
 pub mod cpu_kernels;
 pub mod detector;
+pub mod detector_args;
 pub mod direct_conv;
 pub mod eval;
 pub mod faster_rcnn;

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand};
 use image::{DynamicImage, Rgb};
-use infer::backend::ComputeBackend;
+use infer::detector_args::BackendArg;
 use infer::{Detection, Detector};
 use serde::Serialize;
 
@@ -55,8 +55,8 @@ struct EvalPointsArgs {
     /// Print one JSON object instead of a table.
     #[arg(long)]
     json: bool,
-    #[arg(long, value_enum, default_value_t)]
-    backend: ComputeBackend,
+    #[command(flatten)]
+    backend: BackendArg,
 }
 
 #[derive(Debug, Args)]
@@ -73,8 +73,8 @@ struct DetectArgs {
     /// Keep detections at or above this score (default: the checkpoint's, 0.05).
     #[arg(long)]
     min_score: Option<f32>,
-    #[arg(long, value_enum, default_value_t)]
-    backend: ComputeBackend,
+    #[command(flatten)]
+    backend: BackendArg,
 }
 
 #[derive(Debug, Args)]
@@ -88,8 +88,8 @@ struct EvalArgs {
     /// Print one JSON object instead of a table.
     #[arg(long)]
     json: bool,
-    #[arg(long, value_enum, default_value_t)]
-    backend: ComputeBackend,
+    #[command(flatten)]
+    backend: BackendArg,
 }
 
 #[derive(Serialize)]
@@ -115,7 +115,7 @@ fn run_main() -> Result<()> {
     }
 }
 
-fn load(checkpoint: &Path, backend: ComputeBackend) -> Result<Detector> {
+fn load(checkpoint: &Path, backend: BackendArg) -> Result<Detector> {
     Ok(Detector::load(checkpoint, backend.device()?)?)
 }
 

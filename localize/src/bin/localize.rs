@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 use datasets::formats::read_trajectory;
+use infer::detector_args::{BackendArg, DetectorArgs, SHIPPED_CHECKPOINT};
 use localize::bag_sequence::{BagOptions, BagSequence};
 use localize::config::LocalizeConfig;
 use localize::corner_source::CornerSource;
@@ -68,10 +69,8 @@ struct BenchmarkArgs {
     /// A few minutes instead of about an hour: two buildings, one speed, short sequences.
     #[arg(long)]
     quick: bool,
-    #[arg(long, default_value = "checkpoints/faster-rcnn")]
-    checkpoint: PathBuf,
-    #[arg(long, value_enum, default_value_t = infer::backend::ComputeBackend::Flex)]
-    backend: infer::backend::ComputeBackend,
+    #[command(flatten)]
+    detector: DetectorArgs,
     /// Localization settings as JSON (see config.json of a run).
     #[arg(long)]
     config: Option<PathBuf>,
@@ -86,11 +85,9 @@ struct BenchArgs {
     /// Scans of each kind, taken along the built-in route.
     #[arg(long, default_value_t = 20, value_parser = datasets::cli::positive_count)]
     frames: usize,
-    /// Detector checkpoint to time (skipped when the folder is missing).
-    #[arg(long, default_value = "checkpoints/faster-rcnn")]
-    checkpoint: PathBuf,
-    #[arg(long, value_enum, default_value_t = infer::backend::ComputeBackend::Flex)]
-    backend: infer::backend::ComputeBackend,
+    /// The detector timed (skipped when its checkpoint folder is missing).
+    #[command(flatten)]
+    detector: DetectorArgs,
     #[arg(long)]
     json: bool,
 }
@@ -177,9 +174,8 @@ struct InputArgs {
 struct RunArgs {
     #[command(flatten)]
     input: InputArgs,
-    /// The detector checkpoint folder.
-    #[arg(long, default_value = "checkpoints/faster-rcnn")]
-    checkpoint: PathBuf,
+    #[command(flatten)]
+    detector: DetectorArgs,
     #[arg(long)]
     out: PathBuf,
     /// Instead of the detector, take the 2D corners from this COCO file's
@@ -218,8 +214,6 @@ struct RunArgs {
     label_noise_px: f64,
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    #[arg(long, value_enum, default_value_t = infer::backend::ComputeBackend::Flex)]
-    backend: infer::backend::ComputeBackend,
 }
 
 #[derive(clap::Args)]
@@ -239,13 +233,13 @@ struct AutolabelArgs {
     autolabel_config: Option<PathBuf>,
     /// A detector whose confident detections that no 3D corner confirms are
     /// marked "unsure" (COCO ignore regions) rather than left as background.
-    #[arg(long, default_value = "checkpoints/faster-rcnn", conflicts_with = "without_teacher")]
+    #[arg(long, default_value = SHIPPED_CHECKPOINT, conflicts_with = "without_teacher")]
     teacher: PathBuf,
     /// No teacher: only the 3D sensor's unsure corners become ignore regions.
     #[arg(long)]
     without_teacher: bool,
-    #[arg(long, value_enum, default_value_t = infer::backend::ComputeBackend::Flex)]
-    backend: infer::backend::ComputeBackend,
+    #[command(flatten)]
+    backend: BackendArg,
 }
 
 #[derive(clap::Args)]
@@ -493,7 +487,7 @@ fn benchmark(args: &BenchmarkArgs) -> Result<()> {
     plan.validate().map_err(|m| anyhow::anyhow!("invalid benchmark: {m}"))?;
     let config = read_config(args.config.as_deref())?;
     let show = !std::env::var("CI").is_ok_and(|v| v == "true");
-    let rows = run_benchmark(&args.out, &plan, &args.checkpoint, args.backend.device()?, &config, show)?;
+    let rows = run_benchmark(&args.out, &plan, &args.detector.checkpoint, args.detector.device()?, &config, show)?;
     write_tables(&args.out, &plan, &rows)?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&rows)?);
@@ -657,7 +651,7 @@ fn run(args: &RunArgs) -> Result<()> {
     let mut source = match &args.corners_from_labels {
         _ if args.without_camera => CornerSource::Off,
         Some(labels) => CornerSource::labels(labels, args.label_noise_px, args.seed)?,
-        None => CornerSource::detector(&args.checkpoint, args.backend.device()?, config.fusion.min_score)?,
+        None => CornerSource::detector(&args.detector.checkpoint, args.detector.device()?, config.fusion.min_score)?,
     };
     let map = match &args.map {
         Some(dir) => Some(MapStart { map: localize::map_output::read_map(dir)?, start: args.start_pose }),
@@ -833,8 +827,8 @@ fn bench(args: &BenchArgs) -> Result<()> {
         let v = if (x / 80 + y / 60) % 2 == 0 { 200 } else { 40 };
         image::Rgb([v, v, v])
     }));
-    let detector = if args.checkpoint.is_dir() {
-        Some(infer::detector::Detector::load(&args.checkpoint, args.backend.device()?)?)
+    let detector = if args.detector.checkpoint.is_dir() {
+        Some(infer::detector::Detector::load(&args.detector.checkpoint, args.detector.device()?)?)
     } else {
         None
     };

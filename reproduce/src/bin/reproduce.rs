@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use anyhow::Result;
 use clap::Parser;
 use datasets::corpus::CorpusConfig;
-use infer::backend::ComputeBackend;
+use infer::detector_args::BackendArg;
 use reproduce::plan::{Plan, TrunkSource};
 
 #[derive(Debug, Parser)]
@@ -32,8 +32,8 @@ struct Args {
     /// The folder holding the shipped pretrained networks (`pretrained/<network>/`).
     #[arg(long, default_value = "checkpoints")]
     checkpoints: PathBuf,
-    #[arg(long, value_enum, default_value_t)]
-    backend: ComputeBackend,
+    #[command(flatten)]
+    backend: BackendArg,
 }
 
 fn main() -> std::process::ExitCode {
@@ -48,7 +48,7 @@ fn run_main() -> Result<()> {
     if args.pretrain && !args.quick {
         plan.trunks = TrunkSource::Pretrain { corpus: CorpusConfig::default(), epochs: 3 };
     }
-    plan.backend = args.backend;
+    plan.backend = args.backend.kind;
     if let Some(dir) = &args.data {
         if !dir.join("detection/train.json").is_file() || !dir.join("sequence").is_dir() {
             anyhow::bail!("--data {}: needs detection/train.json, detection/test.json and sequence/", dir.display());

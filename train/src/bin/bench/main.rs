@@ -10,8 +10,8 @@ mod detectors;
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
-use infer::backend::ComputeBackend;
 use infer::config::{Backbone, DEFAULT_WIDTH};
+use infer::detector_args::BackendArg;
 
 #[derive(Debug, Parser)]
 #[command(name = "bench")]
@@ -24,8 +24,8 @@ struct Cli {
 enum Command {
     /// Time a training step and inference of each detector.
     Detectors {
-        #[arg(long, value_enum, default_value_t)]
-        backend: ComputeBackend,
+        #[command(flatten)]
+        backend: BackendArg,
         #[arg(long, default_value_t = DEFAULT_WIDTH)]
         width: f32,
         #[arg(long, default_value_t = 8)]
@@ -86,7 +86,7 @@ fn main() -> std::process::ExitCode {
 fn run_main() -> Result<()> {
     match Cli::parse().command {
         Command::Detectors { backend, width, batch, steps, only, json, burn_kernels } => {
-            detectors::run(backend, width, batch, steps, only, json, burn_kernels)
+            detectors::run(backend.kind, width, batch, steps, only, json, burn_kernels)
         }
         Command::Conv { reps, json } => conv::run(reps, json),
         Command::TrainStep { mut models, batch, warmup, steps, project_only, json } => {
