@@ -9,7 +9,8 @@
 #
 #   cargo build --release && scripts/adapt_buildings.sh OUT [BUILDINGS...]   # default buildings 1-5
 #
-# About 3 minutes a building on 2 cores.
+# About 4 minutes a building on 2 cores (training is not bit-reproducible
+# across runs: its sums run in parallel; AP moves by about 0.01).
 set -euo pipefail
 out=${1:?usage: adapt_buildings.sh OUT [BUILDINGS...]}
 shift
@@ -27,9 +28,9 @@ echo "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"
 for n in "${buildings[@]}"; do
     b="$out/building-$n"
     [ -f "$b/data/datagen.json" ] ||
-        "$bin/datagen" --out "$b/data" --building "$n" --frames 300 --speed 0.5 --images 60 --train 0 > "$b.datagen.log"
+        "$bin/datagen" --out "$b/data" --building "$n" --frames 300 --speed 0.5 --images 60 --train 0 > "$b.datagen.log" 2>&1
     rm -rf "$b/labels" "$b/adapted"
-    CI=true "$bin/localize" autolabel --sequence "$b/data/sequence" --out "$b/labels" > "$b.autolabel.log"
+    CI=true "$bin/localize" autolabel --sequence "$b/data/sequence" --out "$b/labels" > "$b.autolabel.log" 2>&1
     CI=true "$bin/train" --backbone faster-rcnn --pretrained checkpoints/faster-rcnn --data "$b/labels" \
         --out "$b/adapted" --epochs 3 --lr 2e-4 > "$b.train.log" 2>&1
     score=$(python3 -c "import json,sys; s=json.load(open(sys.argv[1]))['against_truth'][0]; print('%.3f | %.3f' % (s['precision'], s['recall']))" "$b/labels/autolabel.json")
