@@ -9,8 +9,7 @@
 #
 #   cargo build --release && scripts/adapt_buildings.sh OUT [BUILDINGS...]   # default buildings 1-5
 #
-# About 4 minutes a building on 2 cores (training is not bit-reproducible
-# across runs: its sums run in parallel; AP moves by about 0.01).
+# About 4 minutes a building on 2 cores.
 set -euo pipefail
 out=${1:?usage: adapt_buildings.sh OUT [BUILDINGS...]}
 shift
