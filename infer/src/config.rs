@@ -49,22 +49,7 @@ impl std::fmt::Display for Backbone {
     }
 }
 
-/// How the grid networks turn trunk features into cells.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize, clap::ValueEnum)]
-#[serde(rename_all = "kebab-case")]
-pub enum GridHead {
-    /// A 3x3 and a 1x1 convolution on the stride-16 features, one output
-    /// pixel per cell: the same weights judge every cell, so 200 images are
-    /// enough to learn what a corner looks like wherever it is.
-    #[default]
-    Conv,
-    /// torchvision's classifier with its last layer replaced: two hidden
-    /// fully connected layers on the 7x7 (6x6) pooled features, then one
-    /// layer with all cells' outputs. Every cell has its own weights; on
-    /// 200 images it memorises the training set and stays at the prior on
-    /// new images.
-    Fc,
-}
+pub use crate::grid_net::GridHead;
 
 /// Default channel multiplier: a quarter of torchvision's widths trains at a
 /// few images per second on two CPU cores.

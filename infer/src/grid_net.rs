@@ -15,9 +15,9 @@ use burn::nn::pool::{AdaptiveAvgPool2d, AdaptiveAvgPool2dConfig};
 use burn::nn::{Dropout, DropoutConfig, Initializer, Linear, LinearConfig, Relu};
 use burn::prelude::*;
 
-use crate::config::GridHead;
 use crate::conv_op::{conv2d, conv2d_relu};
 use crate::trunk::{Architecture, Trunk, TrunkConfig, replace_value};
+use serde::{Deserialize, Serialize};
 
 /// Values per grid cell: presence, offset x, offset y, log width, log height.
 pub const CELL_VALUES: usize = 5;
@@ -34,6 +34,23 @@ fn prior_bias(cells: usize, device: &Device) -> Tensor<1> {
     let values: Vec<f32> = (0..cells * CELL_VALUES).map(|i| if i % CELL_VALUES == 0 { logit } else { 0.0 }).collect();
     let n = values.len();
     Tensor::<1>::from_data(TensorData::new(values, [n]), device)
+}
+
+/// How the grid networks turn trunk features into cells.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum GridHead {
+    /// A 3x3 and a 1x1 convolution on the stride-16 features, one output
+    /// pixel per cell: the same weights judge every cell, so 200 images are
+    /// enough to learn what a corner looks like wherever it is.
+    #[default]
+    Conv,
+    /// torchvision's classifier with its last layer replaced: two hidden
+    /// fully connected layers on the 7x7 (6x6) pooled features, then one
+    /// layer with all cells' outputs. Every cell has its own weights; on
+    /// 200 images it memorises the training set and stays at the prior on
+    /// new images.
+    Fc,
 }
 
 #[derive(Config, Debug)]

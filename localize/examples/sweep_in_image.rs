@@ -17,7 +17,6 @@ use datasets::math::{Pose3, Vec3};
 use datasets::undistort::distort;
 use image::{Rgb, RgbImage};
 use localize::config::LocalizeConfig;
-use localize::geometry::GeometryStages;
 
 /// A matrix of PJLab's calibration JSON: `{"rows", "cols", "data": [[...]]}`
 /// under `<name>.param.<key>`, row by row.
@@ -62,7 +61,7 @@ fn main() -> Result<()> {
     let camera_from_lidar: Pose3 =
         datasets::math::pose_from_rows(&rows).context("the extrinsic is not a rigid transform")?;
     let cloud = read_cloud(cloud, NonFinite::Drop)?;
-    let stages = GeometryStages::new(&LocalizeConfig::default())?;
+    let stages = LocalizeConfig::default().geometry_stages()?;
     // The stages' own clocks, over a few repeats: the median.
     let mut timings = Vec::new();
     let mut geometry = None;

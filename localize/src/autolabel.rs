@@ -100,9 +100,9 @@ impl Default for AutolabelConfig {
 impl AutolabelConfig {
     /// The defaults for a 3D sensor: a depth camera sees furniture-sized
     /// scenes, whose faces (a cabinet's) spread less than a building's walls.
-    pub fn for_range(range: crate::sensor_set::RangeSensor) -> Self {
+    pub fn for_range(range: crate::sequence::RangeSensor) -> Self {
         let mut config = Self::default();
-        if range == crate::sensor_set::RangeSensor::DepthCamera {
+        if range == crate::sequence::RangeSensor::DepthCamera {
             config.tracks.min_plane_extent_m = 0.1;
         }
         config

@@ -20,7 +20,7 @@ use datasets::undistort::Undistorter;
 
 use crate::error::{LocalizeError, Result};
 use crate::rgbd_sequence::{DepthOptions, optical_from_body};
-use crate::sensor_set::RangeSensor;
+use crate::sequence::RangeSensor;
 use crate::sequence::{FrameImage, FrameInput, MotionLog, SensorSequence, SyncConfig, nearest_within};
 
 /// Which topics and frames to use; `None` finds the topic by its type.

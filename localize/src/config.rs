@@ -57,6 +57,11 @@ impl LocalizeConfig {
         config
     }
 
+    /// The per-scan geometry stages of these settings.
+    pub fn geometry_stages(&self) -> crate::error::Result<crate::geometry::GeometryStages> {
+        crate::geometry::GeometryStages::new(&self.voxel, &self.normals, &self.planes, &self.corners)
+    }
+
     /// `self` with the settings of a `--config` file's JSON over it (fields
     /// the file leaves out keep `self`'s), checked.
     pub fn overlaid(&self, file: &serde_json::Value) -> Result<Self, String> {

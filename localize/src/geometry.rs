@@ -5,13 +5,12 @@ use std::time::Instant;
 use datasets::math::Vec3;
 use nalgebra::Point3;
 
-use crate::config::LocalizeConfig;
-use crate::corners::{CornerExtractor, CornerSet};
+use crate::corners::{CornerConfig, CornerExtractor, CornerSet};
 use crate::error::{LocalizeError, Result};
-use crate::normals::{NormalEstimator, PointNormal};
-use crate::planes::{PlaneExtractor, PlaneSet};
+use crate::normals::{NormalConfig, NormalEstimator, PointNormal};
+use crate::planes::{PlaneConfig, PlaneExtractor, PlaneSet};
 use crate::scan_grid::ScanGrid;
-use crate::voxel::VoxelFilter;
+use crate::voxel::{VoxelConfig, VoxelFilter};
 
 pub struct GeometryStages {
     voxel: VoxelFilter,
@@ -38,12 +37,19 @@ fn ms_since(start: Instant) -> f64 {
 }
 
 impl GeometryStages {
-    pub fn new(config: &LocalizeConfig) -> Result<Self> {
+    /// The stages of these settings (`LocalizeConfig::geometry_stages` takes
+    /// them from a whole configuration).
+    pub fn new(
+        voxel: &VoxelConfig,
+        normals: &NormalConfig,
+        planes: &PlaneConfig,
+        corners: &CornerConfig,
+    ) -> Result<Self> {
         Ok(Self {
-            voxel: VoxelFilter::new(config.voxel.clone())?,
-            normals: NormalEstimator::new(config.normals.clone())?,
-            planes: PlaneExtractor::new(config.planes.clone())?,
-            corners: CornerExtractor::new(config.corners.clone())?,
+            voxel: VoxelFilter::new(voxel.clone())?,
+            normals: NormalEstimator::new(normals.clone())?,
+            planes: PlaneExtractor::new(planes.clone())?,
+            corners: CornerExtractor::new(corners.clone())?,
         })
     }
 

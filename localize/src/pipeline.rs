@@ -198,7 +198,7 @@ impl Localizer {
     pub fn new(config: &LocalizeConfig, calibration: Calibration) -> Result<Self> {
         let scan_matcher = ScanMatcher::new(config.scan_match.clone())?;
         Ok(Self {
-            geometry: GeometryStages::new(config)?,
+            geometry: config.geometry_stages()?,
             fusion: CornerFusion::new(config.fusion.clone())?,
             solver: PoseSolver::new(config.pose.clone()),
             map: LandmarkMap::new(config.landmarks.clone()),

@@ -59,7 +59,7 @@ impl Default for PlaneConfig {
 }
 
 impl PlaneConfig {
-    /// The extractor's own limits (stricter than [`crate::config::LocalizeConfig::validate`]'s
+    /// The extractor's own limits (stricter than `LocalizeConfig::validate`'s
     /// ranges for the histogram bin).
     pub fn validate(&self) -> std::result::Result<(), InvalidSetting> {
         let field = |name: &str, problem: String| Err(InvalidSetting::field(format!("planes.{name}"), problem));

@@ -29,7 +29,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{LocalizeError, Result};
 use crate::image_edges::{EdgeOptions, edge_points};
-use crate::sensor_set::RangeSensor;
+use crate::sequence::RangeSensor;
 use crate::sequence::{FrameImage, FrameInput, SensorSequence, nearest_within};
 
 /// How a depth image becomes a scan.

@@ -10,7 +10,7 @@ use std::path::PathBuf;
 use datasets::formats::{Calibration, ImuSample, OdometrySample, Trajectory};
 
 use crate::error::Result;
-use crate::sensor_set::RangeSensor;
+use crate::sequence::RangeSensor;
 use crate::sequence::{FrameInput, SensorSequence};
 
 /// The failures: scans lost in each gap (start and end, seconds after the

@@ -11,17 +11,8 @@ use std::fmt;
 use serde::{Deserialize, Serialize};
 
 use crate::config::LocalizeConfig;
+pub use crate::sequence::RangeSensor;
 use crate::sequence::SensorSequence;
-
-/// What gives a recording's 3D points.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum RangeSensor {
-    /// A spinning or solid-state LIDAR: tens of metres.
-    Lidar,
-    /// A depth image (RGB-D camera) turned into points: a few metres.
-    DepthCamera,
-}
 
 /// The sensors a run uses.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

@@ -23,7 +23,6 @@ use image::DynamicImage;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{LocalizeError, Result};
-use crate::sensor_set::RangeSensor;
 
 /// How frames take their images and their points' times.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -125,6 +124,16 @@ pub struct FrameInput {
     /// Edge points in the 3D sensor's frame (`image_edges`): only an RGB-D
     /// frame whose colour is registered to its depth has them.
     pub edges: Vec<nalgebra::Point3<f32>>,
+}
+
+/// What gives a recording's 3D points.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RangeSensor {
+    /// A spinning or solid-state LIDAR: tens of metres.
+    Lidar,
+    /// A depth image (RGB-D camera) turned into points: a few metres.
+    DepthCamera,
 }
 
 /// A recording localization can run on.

@@ -2,7 +2,6 @@
 
 use datasets::math::Vec3;
 use localize::config::LocalizeConfig;
-use localize::geometry::GeometryStages;
 use nalgebra::Point3;
 use rand::rngs::ChaCha8Rng;
 use rand::{RngExt, SeedableRng};
@@ -41,7 +40,7 @@ fn a_room_gives_its_six_planes_and_eight_corners() {
     let sensor = Vec3::new(3.0, 2.0, 1.2);
     // In the sensor's frame, as a scan would be.
     let points: Vec<Point3<f32>> = room(&mut rng, 4000, 0.01).into_iter().map(|p| p - sensor.cast::<f32>()).collect();
-    let stages = GeometryStages::new(&LocalizeConfig::default()).unwrap();
+    let stages = LocalizeConfig::default().geometry_stages().unwrap();
     let result = stages.run(&points, &Vec3::zeros()).unwrap();
     let planes = &result.planes.planes;
     assert_eq!(planes.len(), 6, "{planes:#?}");
@@ -87,7 +86,7 @@ fn a_ten_degree_ramp_is_a_plane_tilted_by_ten_degrees_with_an_edge_at_the_floor(
         let noise = (rng.random::<f64>() - 0.5) * 0.01;
         points.push(Point3::new(x as f32, y as f32, (z - 0.7 + noise) as f32));
     }
-    let stages = GeometryStages::new(&LocalizeConfig::default()).unwrap();
+    let stages = LocalizeConfig::default().geometry_stages().unwrap();
     let result = stages.run(&points, &Vec3::zeros()).unwrap();
     let planes = &result.planes.planes;
     assert_eq!(planes.len(), 2, "{planes:#?}");
@@ -130,7 +129,7 @@ fn normals_point_toward_the_sensor() {
 
 #[test]
 fn bad_clouds_are_errors_not_panics() {
-    let stages = GeometryStages::new(&LocalizeConfig::default()).unwrap();
+    let stages = LocalizeConfig::default().geometry_stages().unwrap();
     let empty = stages.run(&[], &Vec3::zeros());
     assert!(empty.is_err_and(|e| e.to_string().contains("no finite points")));
     let few: Vec<Point3<f32>> = (0..10).map(|i| Point3::new(i as f32, 0.0, 0.0)).collect();
@@ -143,7 +142,7 @@ fn real_room_scan_has_floor_ceiling_and_walls() {
     let path = manifest_dir().join("../../shared/data/pcl_room_scans/room_scan1.pcd");
     let cloud = datasets::formats::read_cloud(&path, datasets::formats::NonFinite::Drop)
         .unwrap_or_else(|e| panic!("{e} (the shared data folder is needed for this test)"));
-    let stages = GeometryStages::new(&LocalizeConfig::default()).unwrap();
+    let stages = LocalizeConfig::default().geometry_stages().unwrap();
     let result = stages.run(&cloud.points, &Vec3::zeros()).unwrap();
     let planes = &result.planes.planes;
     // The data's README: ceiling z = +1.68 m, floor z = -1.27 m, a room about

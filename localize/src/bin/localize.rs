@@ -385,7 +385,7 @@ fn eval(args: &EvalArgs) -> Result<()> {
 
 fn planes(args: &PlanesArgs) -> Result<()> {
     let cloud = datasets::formats::read_cloud(&args.cloud, datasets::formats::NonFinite::Drop)?;
-    let geometry = localize::geometry::GeometryStages::new(&localize::config::LocalizeConfig::default())?;
+    let geometry = localize::config::LocalizeConfig::default().geometry_stages()?;
     let sensor = cloud.viewpoint.translation.vector;
     let result = geometry.run(&cloud.points, &sensor).with_context(|| format!("{}", args.cloud.display()))?;
     if args.json {
@@ -861,7 +861,7 @@ fn bench(args: &BenchArgs) -> Result<()> {
     ];
     for (name, lidar, config) in scans {
         let clouds = bench_scans(&world, lidar, args.frames)?;
-        let stages = localize::geometry::GeometryStages::new(config)?;
+        let stages = config.geometry_stages()?;
         let [normals, planes, corners] = bench_geometry(&stages, &clouds)?;
         let geometry = normals + planes + corners;
         let sequential = geometry + detector_ms.unwrap_or(0.0);
