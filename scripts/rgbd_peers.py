@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 # The depth camera's optical frame (x right, y down, z forward) from its
-# body frame (x forward, y left, z up): as localize/src/rgbd_sequence.rs.
+# body frame (x forward, y left, z up): as localize/src/input/rgbd_sequence.rs.
 OPTICAL_FROM_BODY = np.array([[0, -1, 0, 0], [0, 0, -1, 0], [1, 0, 0, 0], [0, 0, 0, 1]], dtype=float)
 TUM_CAMERAS = {"freiburg1": (517.3, 516.5, 318.6, 255.3), "freiburg2": (520.9, 521.0, 325.1, 249.7),
                "freiburg3": (535.4, 539.2, 320.1, 247.6)}

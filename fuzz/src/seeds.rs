@@ -266,7 +266,7 @@ fn map_folder() -> Vec<u8> {
         walls: vec![serde_json::from_value(wall).expect("a wall")],
         wall_axis: Some(0.1),
         points: (0..4)
-            .map(|k| localize::point_map::MapPoint {
+            .map(|k| localize::estimation::point_map::MapPoint {
                 position: datasets::math::Vec3::new(2.0, k as f64 * 0.1, 1.0),
                 normal: -datasets::math::Vec3::x(),
             })

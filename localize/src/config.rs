@@ -5,20 +5,20 @@
 use datasets::InvalidSetting;
 use serde::{Deserialize, Serialize};
 
-use crate::corners::CornerConfig;
-use crate::ekf::EkfConfig;
-use crate::fusion::FusionConfig;
-use crate::landmarks::LandmarkConfig;
-use crate::level_floor::LevelFloorConfig;
-use crate::normals::NormalConfig;
-use crate::plane_landmarks::PlaneLandmarkConfig;
-use crate::planes::PlaneConfig;
-use crate::pose::PoseConfig;
-use crate::relocalize::RelocalizeConfig;
-use crate::rgbd_sequence::DepthOptions;
-use crate::scan_match::ScanMatchConfig;
-use crate::sequence::SyncConfig;
-use crate::voxel::VoxelConfig;
+use crate::estimation::ekf::EkfConfig;
+use crate::estimation::fusion::FusionConfig;
+use crate::estimation::landmarks::LandmarkConfig;
+use crate::estimation::level_floor::LevelFloorConfig;
+use crate::estimation::plane_landmarks::PlaneLandmarkConfig;
+use crate::estimation::pose::PoseConfig;
+use crate::estimation::relocalize::RelocalizeConfig;
+use crate::estimation::scan_match::ScanMatchConfig;
+use crate::input::rgbd_sequence::DepthOptions;
+use crate::input::sequence::SyncConfig;
+use crate::scan::corners::CornerConfig;
+use crate::scan::normals::NormalConfig;
+use crate::scan::planes::PlaneConfig;
+use crate::scan::voxel::VoxelConfig;
 
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -58,8 +58,8 @@ impl LocalizeConfig {
     }
 
     /// The per-scan geometry stages of these settings.
-    pub fn geometry_stages(&self) -> crate::error::Result<crate::geometry::GeometryStages> {
-        crate::geometry::GeometryStages::new(&self.voxel, &self.normals, &self.planes, &self.corners)
+    pub fn geometry_stages(&self) -> crate::error::Result<crate::scan::geometry::GeometryStages> {
+        crate::scan::geometry::GeometryStages::new(&self.voxel, &self.normals, &self.planes, &self.corners)
     }
 
     /// `self` with the settings of a `--config` file's JSON over it (fields

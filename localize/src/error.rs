@@ -29,7 +29,7 @@ pub enum LocalizeError {
     Compare {
         path: PathBuf,
         #[source]
-        source: crate::eval::EvalError,
+        source: crate::evaluation::eval::EvalError,
     },
 }
 

@@ -15,9 +15,9 @@ use datasets::DataError;
 use datasets::math::{Pose3, Vec3};
 use serde::{Deserialize, Serialize};
 
-use crate::landmarks::Landmark;
-use crate::plane_landmarks::PlaneLandmark;
-use crate::point_map::MapPoint;
+use crate::estimation::landmarks::Landmark;
+use crate::estimation::plane_landmarks::PlaneLandmark;
+use crate::estimation::point_map::MapPoint;
 
 /// The version `map.json` says it is; version 1 had no keyframes and no
 /// ground-truth origin, and is still read.
@@ -185,7 +185,7 @@ pub fn read_map(dir: &Path) -> datasets::Result<SavedMap> {
     if let Some(k) = file.walls.iter().position(|w| !w.is_valid()) {
         return Err(DataError::invalid(&json_path, format!("wall {k} has a non-finite plane or no weight")));
     }
-    let unit = |w: &crate::plane_landmarks::PlaneLandmark| {
+    let unit = |w: &crate::estimation::plane_landmarks::PlaneLandmark| {
         (w.normal.norm() - 1.0).abs() <= 1e-3 && w.distance.abs() <= MAX_COORDINATE_M
     };
     if let Some(k) = file.walls.iter().position(|w| !unit(w)) {
@@ -240,7 +240,8 @@ mod tests {
             MapPoint { position: Vec3::new(1.0, 2.0, 3.0), normal: Vec3::z() },
             MapPoint { position: Vec3::new(-0.5, 0.25, 0.0), normal: -Vec3::x() },
         ];
-        let turned = Pose3::from_parts(Vec3::new(1.0, -2.0, 0.5).into(), crate::euler::rotation(0.1, 0.0, 2.0));
+        let turned =
+            Pose3::from_parts(Vec3::new(1.0, -2.0, 0.5).into(), crate::estimation::euler::rotation(0.1, 0.0, 2.0));
         let map = SavedMap {
             corners: Vec::new(),
             walls: Vec::new(),

@@ -12,17 +12,17 @@ use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 
 use crate::config::LocalizeConfig;
-use crate::corner_source::CornerSource;
-use crate::corner_tracks::{CornerTrackConfig, CornerTracks, structural_corners};
-use crate::ekf::Ekf;
 use crate::error::Result;
-use crate::eval::{Alignment, ErrorSummary, compare};
-use crate::levels::{LevelMap, SegmentMetrics};
-use crate::motion::FrameMotion;
-use crate::pipeline::{CameraCorners, FrameReport, Localizer};
-use crate::relocalize::{Placement, keyframes_along};
-use crate::sensor_replay::SensorReplay;
-use crate::sequence::{FrameInput, SensorSequence, relative_to, truth_at};
+use crate::estimation::ekf::Ekf;
+use crate::estimation::motion::FrameMotion;
+use crate::estimation::pipeline::{CameraCorners, FrameReport, Localizer};
+use crate::estimation::relocalize::{Placement, keyframes_along};
+use crate::estimation::sensor_replay::SensorReplay;
+use crate::evaluation::eval::{Alignment, ErrorSummary, compare};
+use crate::evaluation::levels::{LevelMap, SegmentMetrics};
+use crate::input::corner_source::CornerSource;
+use crate::input::sequence::{FrameInput, SensorSequence, relative_to, truth_at};
+use crate::labels::corner_tracks::{CornerTrackConfig, CornerTracks, structural_corners};
 
 pub struct RunResult {
     /// The fused trajectory (world from robot).
@@ -31,12 +31,12 @@ pub struct RunResult {
     pub reference: Trajectory,
     pub frames: Vec<FrameReport>,
     /// The maps at the end of the run.
-    pub corner_landmarks: Vec<crate::landmarks::Landmark>,
-    pub plane_landmarks: Vec<crate::plane_landmarks::PlaneLandmark>,
+    pub corner_landmarks: Vec<crate::estimation::landmarks::Landmark>,
+    pub plane_landmarks: Vec<crate::estimation::plane_landmarks::PlaneLandmark>,
     /// The building's axis the walls were squared with (radians).
     pub wall_axis: Option<f64>,
     /// The point map's surface points (empty without scan matching).
-    pub point_map: Vec<crate::point_map::MapPoint>,
+    pub point_map: Vec<crate::estimation::point_map::MapPoint>,
     /// Poses a later run is placed from: the given map's, then this run's.
     pub keyframes: Vec<Pose3>,
     /// The run's world in the ground truth's frame: the ground truth at the
@@ -269,7 +269,7 @@ impl DetectorClock {
 const MAX_OUTSIDE_LOGS_S: f64 = 1.0;
 
 fn check_logs_cover(stamps: &[f64], sequence: &dyn SensorSequence) -> Result<()> {
-    use crate::sequence::MotionLog;
+    use crate::input::sequence::MotionLog;
     let odometry = sequence.odometry();
     let imu = sequence.imu();
     let spans = [
@@ -363,7 +363,10 @@ pub fn metrics_against(
 impl RunResult {
     /// Frames corrected with the camera's corners in the solve.
     pub fn fused_frames(&self) -> usize {
-        self.frames.iter().filter(|f| matches!(f.status, crate::pipeline::FrameStatus::Fused { .. })).count()
+        self.frames
+            .iter()
+            .filter(|f| matches!(f.status, crate::estimation::pipeline::FrameStatus::Fused { .. }))
+            .count()
     }
 
     /// A frame's mean time, all stages.
@@ -386,8 +389,8 @@ pub fn longest_scan_gap(frames: &[FrameReport]) -> Option<(f64, f64)> {
 /// more than ten times the log's typical (median) interval and over
 /// `MIN_LOG_GAP_S`: across it the motion is interpolated, not measured.
 /// Returns (log, gap in seconds, the stamp that ended it).
-pub fn log_gaps(sequence: &dyn SensorSequence) -> Vec<(crate::sequence::MotionLog, f64, f64)> {
-    use crate::sequence::MotionLog;
+pub fn log_gaps(sequence: &dyn SensorSequence) -> Vec<(crate::input::sequence::MotionLog, f64, f64)> {
+    use crate::input::sequence::MotionLog;
     let odometry: Vec<f64> = sequence.odometry().iter().map(|s| s.timestamp).collect();
     let imu: Vec<f64> = sequence.imu().iter().map(|s| s.timestamp).collect();
     [(MotionLog::Odometry, odometry), (MotionLog::Imu, imu)]
@@ -475,7 +478,12 @@ pub fn write_outputs(
         write_tum(&dir.join("reference.txt"), &result.reference)?;
         datasets::atomic::write_bytes(&dir.join("frames.csv"), frames_csv(&result.frames).as_bytes())?;
         datasets::atomic::write_json(&dir.join("config.json"), config)?;
-        crate::plot::write_trajectory_png(&dir.join("trajectory.png"), &result.trajectory, &result.reference, truth)?;
+        crate::evaluation::plot::write_trajectory_png(
+            &dir.join("trajectory.png"),
+            &result.trajectory,
+            &result.reference,
+            truth,
+        )?;
         let map = crate::map_output::SavedMap {
             corners: result.corner_landmarks.clone(),
             walls: result.plane_landmarks.clone(),

@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 use datasets::formats::PointCloud;
 use datasets::recording::Recording;
 use datasets::recording::mcap_export::point_cloud2;
-use localize::bag_sequence::{BagOptions, find_roles};
+use localize::input::bag_sequence::{BagOptions, find_roles};
 
 /// An MCAP with two PointCloud2 topics and nothing else.
 fn two_lidars(path: &std::path::Path) {
@@ -60,7 +60,9 @@ fn scans_whose_stamps_are_never_set_are_an_error_not_a_one_pose_trajectory() {
     writer.finish().unwrap();
     drop(writer);
     let options = BagOptions::default();
-    let error =
-        localize::bag_sequence::BagSequence::open(&path, &options, &Default::default()).err().unwrap().to_string();
+    let error = localize::input::bag_sequence::BagSequence::open(&path, &options, &Default::default())
+        .err()
+        .unwrap()
+        .to_string();
     assert!(error.contains("zero.mcap") && error.contains("19 of the 20 messages of /points repeat"), "{error}");
 }

@@ -2,8 +2,10 @@
 //! named, plans outside the supported ranges are refused, and the tables
 //! carry each figure in its unit (Markdown in mm, CSV in m).
 
-use localize::benchmark::{BenchmarkPlan, BenchmarkRow, SequenceRecord, csv, markdown, parse_buildings, parse_speeds};
-use localize::eval::ErrorSummary;
+use localize::evaluation::benchmark::{
+    BenchmarkPlan, BenchmarkRow, SequenceRecord, csv, markdown, parse_buildings, parse_speeds,
+};
+use localize::evaluation::eval::ErrorSummary;
 
 #[test]
 fn building_and_speed_lists_parse_or_name_the_bad_part() {

@@ -3,9 +3,9 @@
 
 use datasets::math::{Pose3, Vec3};
 use datasets::world::motion::{MotionConfig, simulate_imu, simulate_odometry};
-use localize::ekf::{Ekf, EkfConfig};
-use localize::pose::{Correspondence, PoseConfig, PoseSolver};
-use localize::sensor_replay::SensorReplay;
+use localize::estimation::ekf::{Ekf, EkfConfig};
+use localize::estimation::pose::{Correspondence, PoseConfig, PoseSolver};
+use localize::estimation::sensor_replay::SensorReplay;
 use nalgebra::{Translation3, UnitQuaternion};
 
 /// A 2 m radius turn at 0.1 m/s that, from t = 30 s, tilts nose-up over 2 s
@@ -89,8 +89,8 @@ fn a_correction_recovers_a_known_rigid_transform() {
 
 #[test]
 fn walls_alone_recover_position_and_heading() {
-    use localize::plane_landmarks::{PlaneLandmarkConfig, PlaneMap, RobotPlane};
-    use localize::pose::{PlaneCorrespondence, PlaneSigmas};
+    use localize::estimation::plane_landmarks::{PlaneLandmarkConfig, PlaneMap, RobotPlane};
+    use localize::estimation::pose::{PlaneCorrespondence, PlaneSigmas};
     let truth = Pose3::from_parts(Translation3::new(1.0, 0.5, 0.0), UnitQuaternion::from_euler_angles(0.0, 0.0, 0.3));
     // Four walls of a 6 x 4 m room: (outward normal, offset) in the world.
     let walls = [

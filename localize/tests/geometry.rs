@@ -30,7 +30,11 @@ fn room(rng: &mut ChaCha8Rng, per_face: usize, noise: f32) -> Vec<Point3<f32>> {
     points
 }
 
-fn find(planes: &[localize::planes::Plane], normal: Vec3, distance: f64) -> Option<&localize::planes::Plane> {
+fn find(
+    planes: &[localize::scan::planes::Plane],
+    normal: Vec3,
+    distance: f64,
+) -> Option<&localize::scan::planes::Plane> {
     planes.iter().find(|p| p.normal.dot(&normal) > 0.99 && (p.distance - distance).abs() < 0.1)
 }
 
@@ -90,7 +94,7 @@ fn a_ten_degree_ramp_is_a_plane_tilted_by_ten_degrees_with_an_edge_at_the_floor(
     let result = stages.run(&points, &Vec3::zeros()).unwrap();
     let planes = &result.planes.planes;
     assert_eq!(planes.len(), 2, "{planes:#?}");
-    let tilt = |p: &localize::planes::Plane| p.normal.z.abs().min(1.0).acos().to_degrees();
+    let tilt = |p: &localize::scan::planes::Plane| p.normal.z.abs().min(1.0).acos().to_degrees();
     let mut tilts: Vec<f64> = planes.iter().map(tilt).collect();
     tilts.sort_by(f64::total_cmp);
     assert!(tilts[0] < 0.3, "floor tilted {} deg", tilts[0]);
@@ -109,8 +113,8 @@ fn normals_point_toward_the_sensor() {
     let mut rng = ChaCha8Rng::seed_from_u64(5);
     let points: Vec<Point3<f32>> = room(&mut rng, 1500, 0.0).into_iter().collect();
     let sensor = Vec3::new(4.0, 2.5, 1.5);
-    let grid = localize::scan_grid::ScanGrid::new(&points, &sensor);
-    let estimator = localize::normals::NormalEstimator::new(Default::default()).unwrap();
+    let grid = localize::scan::scan_grid::ScanGrid::new(&points, &sensor);
+    let estimator = localize::scan::normals::NormalEstimator::new(Default::default()).unwrap();
     let normals = estimator.estimate(&points, &grid).unwrap();
     let mut facing = 0;
     for (p, n) in points.iter().zip(&normals) {
@@ -150,7 +154,7 @@ fn real_room_scan_has_floor_ceiling_and_walls() {
     let horizontal = |d: f64| planes.iter().any(|p| p.normal.z.abs() > 0.999 && (p.distance - d).abs() < 0.05);
     assert!(horizontal(1.27), "no floor at z = -1.27: {planes:#?}");
     assert!(horizontal(1.66), "no ceiling at z = +1.68");
-    let walls: Vec<&localize::planes::Plane> =
+    let walls: Vec<&localize::scan::planes::Plane> =
         planes.iter().filter(|p| p.normal.z.abs() < 0.05 && p.inliers.len() > 1000).collect();
     assert!(walls.len() >= 3, "{walls:#?}");
     let (ny, py) = (

@@ -6,12 +6,12 @@
 use std::path::{Path, PathBuf};
 
 use datasets::math::{Pose3, Vec3};
-use localize::corner_source::CornerSource;
-use localize::image_edges::EdgeOptions;
-use localize::rgbd_sequence::{DepthOptions, RgbdLayout, RgbdSequence, optical_from_body};
+use localize::input::corner_source::CornerSource;
+use localize::input::rgbd_sequence::{DepthOptions, RgbdLayout, RgbdSequence, optical_from_body};
+use localize::input::sensor_set::{RangeSensor, SensorSet};
+use localize::input::sequence::SensorSequence;
 use localize::run::{metrics, run_sequence};
-use localize::sensor_set::{RangeSensor, SensorSet};
-use localize::sequence::SensorSequence;
+use localize::scan::image_edges::EdgeOptions;
 
 const FX: f64 = 585.0;
 
@@ -221,11 +221,12 @@ fn write_depth_mcap(path: &Path, frames: usize) {
 
 #[test]
 fn a_recording_of_depth_images_alone_is_localized_as_the_folder_is() {
-    use localize::bag_sequence::{BagOptions, BagSequence};
+    use localize::input::bag_sequence::{BagOptions, BagSequence};
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("depth.mcap");
     write_depth_mcap(&path, 16);
-    let bag = BagSequence::open(&path, &BagOptions::default(), &localize::sequence::SyncConfig::default()).unwrap();
+    let bag =
+        BagSequence::open(&path, &BagOptions::default(), &localize::input::sequence::SyncConfig::default()).unwrap();
     assert_eq!(bag.range_sensor(), RangeSensor::DepthCamera, "{:?}", bag.notes);
     assert_eq!(bag.recording.topics[bag.roles.lidar].name, "/camera/depth/image_raw");
     assert_eq!((bag.roles.image, bag.roles.imu, bag.roles.odometry), (None, None, None));

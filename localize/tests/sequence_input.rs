@@ -10,10 +10,10 @@ use datasets::formats::{
 };
 use datasets::math::Pose3;
 use localize::config::LocalizeConfig;
-use localize::corner_source::CornerSource;
-use localize::pipeline::FrameStatus;
+use localize::estimation::pipeline::FrameStatus;
+use localize::input::corner_source::CornerSource;
+use localize::input::sequence::RecordedSequence;
 use localize::run::run_sequence;
-use localize::sequence::RecordedSequence;
 use nalgebra::Point3;
 
 /// The package folder, read when the test runs (cargo sets it), so that a
@@ -152,16 +152,16 @@ fn scans_take_the_nearest_image_within_the_tolerance_on_its_own_clock() {
     let taken: Vec<Option<f64>> = sequence.frames.iter().map(|f| f.image.as_ref().map(|i| i.stamp)).collect();
     // 1020000000000000000 ns is 1.02e9 s, far from every scan.
     assert_eq!(taken, [Some(0.02), None, None]);
-    let wide = localize::sequence::SyncConfig { image_tolerance_s: 0.5, ..Default::default() };
+    let wide = localize::input::sequence::SyncConfig { image_tolerance_s: 0.5, ..Default::default() };
     let sequence = RecordedSequence::open_with(dir.path(), &wide).unwrap();
     let taken: Vec<Option<f64>> = sequence.frames.iter().map(|f| f.image.as_ref().map(|i| i.stamp)).collect();
     assert_eq!(taken, [Some(0.02), None, Some(2.3)]);
     // Epoch nanoseconds keep what an f64 can of them (a quarter microsecond).
-    let t = localize::sequence::stamp_of_name("1700000000123456789").unwrap();
+    let t = localize::input::sequence::stamp_of_name("1700000000123456789").unwrap();
     assert!((t - 1.7e9 - 0.123_456_789).abs() < 2.5e-7, "{t}");
     assert_eq!(datasets::generate::stamp_name(9.5), "0000000009.500000");
     assert!(datasets::generate::stamp_name(9.5) < datasets::generate::stamp_name(10.0), "names sort in time order");
-    let bad = localize::sequence::SyncConfig { image_tolerance_s: f64::NAN, ..Default::default() };
+    let bad = localize::input::sequence::SyncConfig { image_tolerance_s: f64::NAN, ..Default::default() };
     assert!(RecordedSequence::open_with(dir.path(), &bad).err().unwrap().to_string().contains("image_tolerance_s"));
 }
 
@@ -200,7 +200,7 @@ fn empty_logs_every_cloud_broken_and_scans_past_the_logs_are_errors() {
 
 #[test]
 fn an_image_between_two_scans_serves_both_from_a_bag_as_from_the_folder() {
-    use localize::sequence::SensorSequence;
+    use localize::input::sequence::SensorSequence;
     let dir = tempfile::tempdir().unwrap();
     write_sequence(dir.path());
     std::fs::create_dir_all(dir.path().join("rgb")).unwrap();
@@ -208,10 +208,14 @@ fn an_image_between_two_scans_serves_both_from_a_bag_as_from_the_folder() {
     datasets::atomic::write_image(&dir.path().join("rgb/1.5.png"), &image).unwrap();
     let bag = dir.path().join("still.mcap");
     datasets::recording::mcap_export::write_sequence_mcap(dir.path(), &bag).unwrap();
-    let sync = localize::sequence::SyncConfig { image_tolerance_s: 0.6, ..Default::default() };
+    let sync = localize::input::sequence::SyncConfig { image_tolerance_s: 0.6, ..Default::default() };
     let folder = RecordedSequence::open_with(dir.path(), &sync).unwrap();
-    let recording =
-        localize::bag_sequence::BagSequence::open(&bag, &localize::bag_sequence::BagOptions::default(), &sync).unwrap();
+    let recording = localize::input::bag_sequence::BagSequence::open(
+        &bag,
+        &localize::input::bag_sequence::BagOptions::default(),
+        &sync,
+    )
+    .unwrap();
     for sequence in [&folder as &dyn SensorSequence, &recording] {
         let mut taken = Vec::new();
         sequence
@@ -228,7 +232,7 @@ fn an_image_between_two_scans_serves_both_from_a_bag_as_from_the_folder() {
 
 #[test]
 fn a_generated_building_with_its_own_clocks_reads_as_scans_with_images_and_sweeps() {
-    use localize::sequence::SensorSequence;
+    use localize::input::sequence::SensorSequence;
     // Building 1 with a robot's timing: 10 Hz sweeps, a 15 Hz camera 21 ms
     // off the LIDAR's clock, 50 Hz odometry, 200 Hz IMU.
     let dir = tempfile::tempdir().unwrap();
@@ -337,7 +341,7 @@ fn labels_give_no_corners_for_an_unreadable_image_or_one_they_do_not_list() {
 
 #[test]
 fn a_hole_in_the_odometry_log_is_reported_with_its_length_and_end() {
-    use localize::sequence::SensorSequence;
+    use localize::input::sequence::SensorSequence;
     let dir = tempfile::tempdir().unwrap();
     write_sequence(dir.path());
     let sequence = RecordedSequence::open(dir.path()).unwrap();
@@ -353,7 +357,7 @@ fn a_hole_in_the_odometry_log_is_reported_with_its_length_and_end() {
     let gaps = localize::run::log_gaps(&sequence);
     assert_eq!(gaps.len(), 1, "{gaps:?}");
     let (log, gap, end) = gaps[0];
-    assert_eq!(log, localize::sequence::MotionLog::Odometry);
+    assert_eq!(log, localize::input::sequence::MotionLog::Odometry);
     assert!(sequence.log_source(log).ends_with("odom.csv"), "{}", sequence.log_source(log));
     assert!((gap - 1.5).abs() < 1e-9 && (end - 2.0).abs() < 1e-9, "{gap} s before {end} s");
 }

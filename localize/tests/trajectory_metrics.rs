@@ -5,8 +5,8 @@ use std::path::PathBuf;
 
 use datasets::formats::{Trajectory, read_trajectory};
 use datasets::math::{Pose3, Vec3};
-use localize::eval::{Alignment, associate, compare};
-use localize::similarity::umeyama;
+use localize::evaluation::eval::{Alignment, associate, compare};
+use localize::evaluation::similarity::umeyama;
 use nalgebra::{Translation3, UnitQuaternion};
 
 /// The package folder, read when the test runs (cargo sets it), so that a
@@ -79,7 +79,7 @@ fn association_matches_evo_pairs_nearest_first() {
     assert_eq!(pairs, vec![(0, 0), (1, 1), (1, 2)]);
 }
 
-fn check(c: &localize::eval::ErrorSummary, rmse: f64, mean: f64, median: f64, max: f64) {
+fn check(c: &localize::evaluation::eval::ErrorSummary, rmse: f64, mean: f64, median: f64, max: f64) {
     for (got, want) in [(c.ate_rmse, rmse), (c.ate_mean, mean), (c.ate_median, median), (c.ate_max, max)] {
         assert!((got - want).abs() < 1e-4 * 0.5 + 1e-6, "{got} vs evo {want}");
     }

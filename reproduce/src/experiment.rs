@@ -8,9 +8,9 @@ use std::time::Instant;
 
 use infer::config::Backbone;
 use infer::metrics::EvalMetrics;
-use localize::corner_source::CornerSource;
+use localize::input::corner_source::CornerSource;
+use localize::input::sequence::RecordedSequence;
 use localize::run::{RunMetrics, TrajectoryMetrics, metrics_against, run_sequence, truth_in_run_frame, write_outputs};
-use localize::sequence::RecordedSequence;
 use serde::{Deserialize, Serialize};
 use train::compare::{RunRecord, csv_table, markdown_table, read_run, write_loss_plots};
 use train::{Start, TrainConfig};
@@ -64,7 +64,7 @@ pub struct ErrorRow {
 }
 
 fn error_rows(t: &TrajectoryMetrics) -> Vec<ErrorRow> {
-    let row = |level: &str, e: &localize::eval::ErrorSummary| ErrorRow {
+    let row = |level: &str, e: &localize::evaluation::eval::ErrorSummary| ErrorRow {
         level: level.to_string(),
         matched: e.matched,
         rmse_x: e.rmse_x,

@@ -4,9 +4,9 @@
 //! trainer reads.
 
 use datasets::generate::{DatagenConfig, generate};
-use localize::autolabel::{AutolabelConfig, autolabel};
 use localize::config::LocalizeConfig;
-use localize::sequence::RecordedSequence;
+use localize::input::sequence::RecordedSequence;
+use localize::labels::autolabel::{AutolabelConfig, autolabel};
 
 #[test]
 fn autolabels_of_a_generated_route_land_on_the_true_corners_and_train_reads_them() {

@@ -6,12 +6,12 @@
 
 use datasets::generate::{DatagenConfig, generate};
 use datasets::recording::mcap_export::write_sequence_mcap;
-use localize::bag_sequence::{BagOptions, BagSequence};
 use localize::config::LocalizeConfig;
-use localize::corner_source::CornerSource;
-use localize::eval::{Alignment, compare};
+use localize::evaluation::eval::{Alignment, compare};
+use localize::input::bag_sequence::{BagOptions, BagSequence};
+use localize::input::corner_source::CornerSource;
+use localize::input::sequence::{RecordedSequence, SensorSequence, SyncConfig};
 use localize::run::{metrics, run_sequence};
-use localize::sequence::{RecordedSequence, SensorSequence, SyncConfig};
 
 fn manifest_dir() -> std::path::PathBuf {
     std::env::var_os("CARGO_MANIFEST_DIR").map_or_else(|| env!("CARGO_MANIFEST_DIR").into(), Into::into)

@@ -3,9 +3,9 @@
 
 use datasets::generate::{DatagenConfig, generate};
 use localize::config::LocalizeConfig;
-use localize::corner_source::CornerSource;
+use localize::input::corner_source::CornerSource;
+use localize::input::sequence::RecordedSequence;
 use localize::run::{MapStart, metrics, run_sequence, run_sequence_in_map, truth_in_run_frame, write_outputs};
-use localize::sequence::RecordedSequence;
 
 /// The package folder, read when the test runs (cargo sets it), so that a
 /// test binary reused from another checkout still finds its files.
@@ -69,7 +69,7 @@ fn fused_localization_beats_odometry_and_imu_on_a_generated_route() {
     let placed = again.placement.expect("the first scan is placed in the map");
     assert!(placed.pose.translation.vector.norm() < 0.03, "placed at {:?}", placed.pose);
     assert!(again.frames[0].scan_correspondences >= 50, "{}", again.frames[0].status.label());
-    assert!(!matches!(again.frames[0].status, localize::pipeline::FrameStatus::FirstFrame));
+    assert!(!matches!(again.frames[0].status, localize::estimation::pipeline::FrameStatus::FirstFrame));
     let m = metrics(&sequence, &again).unwrap().unwrap();
     assert!(m.fused.overall.ate_rmse < 0.05, "in the map, without the camera: ATE {} m", m.fused.overall.ate_rmse);
 }
@@ -102,7 +102,7 @@ fn a_sequence_that_starts_elsewhere_is_placed_in_an_earlier_runs_map() {
     let m = metrics(&later, &run).unwrap().expect("the map knows its ground-truth origin");
     assert!(m.fused.overall.ate_rmse < 0.05, "in the map: ATE {} m", m.fused.overall.ate_rmse);
     // Per level: the levels under the robot's true positions in the building.
-    let levels = localize::levels::LevelMap::read(&dir.path().join("later/sequence/world.json")).unwrap();
+    let levels = localize::evaluation::levels::LevelMap::read(&dir.path().join("later/sequence/world.json")).unwrap();
     let mut expected: Vec<String> =
         later.ground_truth.as_ref().unwrap().positions().filter_map(|p| levels.segment_at(p.x, p.y)).collect();
     expected.sort();
@@ -122,8 +122,8 @@ fn a_sequence_that_starts_elsewhere_is_placed_in_an_earlier_runs_map() {
 }
 
 /// A map point as `map.ply` stores it (single precision).
-fn round_to_f32(p: &localize::point_map::MapPoint) -> localize::point_map::MapPoint {
-    localize::point_map::MapPoint {
+fn round_to_f32(p: &localize::estimation::point_map::MapPoint) -> localize::estimation::point_map::MapPoint {
+    localize::estimation::point_map::MapPoint {
         position: p.position.map(|v| v as f32 as f64),
         normal: p.normal.map(|v| v as f32 as f64),
     }
@@ -151,7 +151,7 @@ fn without_the_camera_scan_matching_keeps_the_lidar_estimate_well_ahead_of_odome
 
 #[test]
 fn a_lidar_blackout_and_a_camera_that_stops_leave_the_run_going_and_bounded() {
-    use localize::sensor_faults::{SensorFaults, WithChanges};
+    use localize::input::sensor_faults::{SensorFaults, WithChanges};
     let dir = tempfile::tempdir().unwrap();
     let sequence = short_sequence(dir.path(), 30);
     let labels = dir.path().join("sequence/labels.json");
@@ -164,7 +164,11 @@ fn a_lidar_blackout_and_a_camera_that_stops_leave_the_run_going_and_bounded() {
     let after = result.frames.iter().find(|f| f.stamp > 7.5).unwrap();
     assert!((after.stamp - 14.0).abs() < 1e-9 && (after.scan_gap_s - 7.0).abs() < 1e-9, "{after:?}");
     assert_eq!(localize::run::longest_scan_gap(&result.frames), Some((after.scan_gap_s, after.stamp)));
-    assert!(matches!(after.status, localize::pipeline::FrameStatus::Fused { .. }), "{}", after.status.label());
+    assert!(
+        matches!(after.status, localize::estimation::pipeline::FrameStatus::Fused { .. }),
+        "{}",
+        after.status.label()
+    );
     // From 20 s on, no image: LIDAR only, and frames.csv says why.
     for frame in &result.frames {
         let stopped = frame.status.label().contains("camera stopped");

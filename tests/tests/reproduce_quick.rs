@@ -8,7 +8,7 @@
 //! truth), so a report that mixed up runs or misquoted a number fails.
 
 use infer::config::Backbone;
-use localize::eval::{Alignment, compare};
+use localize::evaluation::eval::{Alignment, compare};
 use reproduce::plan::Plan;
 
 #[test]

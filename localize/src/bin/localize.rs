@@ -7,17 +7,17 @@ use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 use datasets::formats::read_trajectory;
 use infer::detector_args::{BackendArg, DetectorArgs, SHIPPED_CHECKPOINT};
-use localize::bag_sequence::{BagOptions, BagSequence};
 use localize::config::LocalizeConfig;
-use localize::corner_source::CornerSource;
-use localize::eval::{Alignment, ErrorSummary, compare};
-use localize::levels::LevelMap;
-use localize::pipeline::FrameStatus;
-use localize::rgbd_sequence::RgbdSequence;
+use localize::estimation::pipeline::FrameStatus;
+use localize::evaluation::eval::{Alignment, ErrorSummary, compare};
+use localize::evaluation::levels::LevelMap;
+use localize::input::bag_sequence::{BagOptions, BagSequence};
+use localize::input::corner_source::CornerSource;
+use localize::input::rgbd_sequence::RgbdSequence;
+use localize::input::sensor_faults::{SensorFaults, WithChanges};
+use localize::input::sensor_set::{RangeSensor, SensorSet};
+use localize::input::sequence::{RecordedSequence, SensorSequence};
 use localize::run::{MapStart, metrics_against, run_sequence_in_map, truth_in_run_frame, write_outputs};
-use localize::sensor_faults::{SensorFaults, WithChanges};
-use localize::sensor_set::{RangeSensor, SensorSet};
-use localize::sequence::{RecordedSequence, SensorSequence};
 
 #[derive(Parser)]
 #[command(name = "localize", about = "Corner-fusion localization: camera corners + LIDAR planes")]
@@ -126,8 +126,8 @@ struct TopicArgs {
 }
 
 impl TopicArgs {
-    fn options(&self, calib: Option<PathBuf>) -> localize::bag_sequence::BagOptions {
-        localize::bag_sequence::BagOptions {
+    fn options(&self, calib: Option<PathBuf>) -> localize::input::bag_sequence::BagOptions {
+        localize::input::bag_sequence::BagOptions {
             lidar_topic: self.lidar_topic.clone(),
             image_topic: self.image_topic.clone(),
             camera_info_topic: self.camera_info_topic.clone(),
@@ -199,7 +199,7 @@ struct RunArgs {
     start_pose: Option<datasets::math::Pose3>,
     /// Simulate a LIDAR blackout: drop the scans from START to END seconds
     /// after the first scan (repeatable), to see how the run holds up.
-    #[arg(long, value_name = "START:END", value_parser = localize::sensor_faults::parse_gap)]
+    #[arg(long, value_name = "START:END", value_parser = localize::input::sensor_faults::parse_gap)]
     lidar_gap: Vec<[f64; 2]>,
     /// Simulate a camera that stops: no image from this many seconds after the first scan on.
     #[arg(long, value_name = "SECONDS", value_parser = datasets::cli::non_negative)]
@@ -335,7 +335,7 @@ fn inspect(args: &InspectArgs) -> Result<()> {
     let recording = datasets::recording::Recording::open(&args.path)?;
     print!("{}", recording.info());
     println!("Roles for `localize run --bag`:");
-    match localize::bag_sequence::find_roles(&recording, &args.topics.options(None)) {
+    match localize::input::bag_sequence::find_roles(&recording, &args.topics.options(None)) {
         Ok((_, notes)) => notes.iter().for_each(|n| println!("  {n}")),
         Err(e) => println!("  not runnable as it is: {e}"),
     }
@@ -469,7 +469,7 @@ fn config_error(path: Option<&Path>, message: &str) -> anyhow::Error {
 }
 
 fn benchmark(args: &BenchmarkArgs) -> Result<()> {
-    use localize::benchmark::{BenchmarkPlan, parse_buildings, parse_speeds, run_benchmark, write_tables};
+    use localize::evaluation::benchmark::{BenchmarkPlan, parse_buildings, parse_speeds, run_benchmark, write_tables};
     let mut plan = if args.quick { BenchmarkPlan::quick() } else { BenchmarkPlan::standard() };
     if let Some(text) = &args.buildings {
         plan.buildings = parse_buildings(text).map_err(|m| anyhow::anyhow!("--buildings: {m}"))?;
@@ -492,7 +492,7 @@ fn benchmark(args: &BenchmarkArgs) -> Result<()> {
     if args.json {
         println!("{}", serde_json::to_string_pretty(&rows)?);
     } else {
-        print!("{}", localize::benchmark::markdown(&rows));
+        print!("{}", localize::evaluation::benchmark::markdown(&rows));
         println!("errors in mm; wrote benchmark.md, benchmark.csv and benchmark.json to {}", args.out.display());
     }
     Ok(())
@@ -564,8 +564,8 @@ fn open_input(
 }
 
 fn autolabel(args: &AutolabelArgs) -> Result<()> {
-    use localize::autolabel::AutolabelConfig;
-    localize::autolabel::check_output_folder(&args.out)?;
+    use localize::labels::autolabel::AutolabelConfig;
+    localize::labels::autolabel::check_output_folder(&args.out)?;
     // The file is checked over the defaults before anything is read, and laid
     // over the defaults of the recording's 3D sensor once it is open.
     let file = read_config_file(args.autolabel_config.as_deref())?;
@@ -594,7 +594,7 @@ fn autolabel(args: &AutolabelArgs) -> Result<()> {
     };
     let config = overlay(AutolabelConfig::for_range(sensors.range))?;
     let progress = !std::env::var("CI").is_ok_and(|v| v == "true");
-    let (report, run) = localize::autolabel::autolabel(
+    let (report, run) = localize::labels::autolabel::autolabel(
         &args.out,
         &*sequence,
         &localize_config,
@@ -755,7 +755,7 @@ fn parse_start_pose(text: &str) -> std::result::Result<datasets::math::Pose3, St
     match values[..] {
         [x, y, z, yaw] if values.iter().all(|v| v.is_finite()) => Ok(datasets::math::Pose3::from_parts(
             datasets::math::Vec3::new(x, y, z).into(),
-            localize::euler::rotation(0.0, 0.0, yaw.to_radians()),
+            localize::estimation::euler::rotation(0.0, 0.0, yaw.to_radians()),
         )),
         _ => Err(format!("`{text}`: expected four finite numbers X,Y,Z,YAW_DEG")),
     }
@@ -782,7 +782,7 @@ fn bench_scans(
 
 /// Mean milliseconds of each geometry stage over `scans`, run alone.
 fn bench_geometry(
-    stages: &localize::geometry::GeometryStages,
+    stages: &localize::scan::geometry::GeometryStages,
     scans: &[datasets::formats::PointCloud],
 ) -> Result<[f64; 3]> {
     let mut ms = [0.0; 3];
@@ -798,7 +798,7 @@ fn bench_geometry(
 /// Mean wall milliseconds of a frame as `localize run` does it: the
 /// geometry and the detector side by side.
 fn bench_frame(
-    stages: &localize::geometry::GeometryStages,
+    stages: &localize::scan::geometry::GeometryStages,
     scans: &[datasets::formats::PointCloud],
     detector: &infer::detector::Detector,
     image: &image::DynamicImage,

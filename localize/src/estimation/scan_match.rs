@@ -13,11 +13,11 @@ use nalgebra::{Matrix3, Matrix6, Point3, SMatrix, Vector6};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::edge_map::EdgeMap;
-use crate::ekf::{pose_entries, pose_from_entries};
-use crate::euler::{rotation, wrap};
-use crate::normals::PointNormal;
-use crate::point_map::PointMap;
+use crate::estimation::edge_map::EdgeMap;
+use crate::estimation::ekf::{pose_entries, pose_from_entries};
+use crate::estimation::euler::{rotation, wrap};
+use crate::estimation::point_map::PointMap;
+use crate::scan::normals::PointNormal;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -530,8 +530,9 @@ mod tests {
                 (on_wall * ((range + noise) / range)).cast::<f32>().into()
             })
             .collect();
-        let grid = crate::scan_grid::ScanGrid::new(&points, &Vec3::zeros());
-        let estimator = crate::normals::NormalEstimator::new(crate::normals::NormalConfig::default()).unwrap();
+        let grid = crate::scan::scan_grid::ScanGrid::new(&points, &Vec3::zeros());
+        let estimator =
+            crate::scan::normals::NormalEstimator::new(crate::scan::normals::NormalConfig::default()).unwrap();
         let normals = estimator.estimate(&points, &grid).unwrap();
         let config = ScanMatchConfig { max_curvature: 1.0, ..ScanMatchConfig::default() };
         let scan = ScanPoints::select(&config, &points, &normals, &Pose3::identity());
@@ -597,7 +598,7 @@ mod tests {
             edges: Vec::new(),
         };
         let fix = matcher.register(&map, None, &scan, &Vector6::zeros()).expect("a closed room registers");
-        let error = fix.difference(&crate::ekf::pose_entries(&truth));
+        let error = fix.difference(&crate::estimation::ekf::pose_entries(&truth));
         assert!(error.fixed_rows::<3>(0).norm() < 2e-3, "translation off by {error:?}");
         assert!(error.fixed_rows::<3>(3).norm() < 1e-3, "rotation off by {error:?}");
         // Exact surfaces; the residue is where a voxel straddles an edge of the room or the box.

@@ -11,9 +11,9 @@ use datasets::camera::PinholeCamera;
 use datasets::math::{Pose3, Vec3};
 use serde::{Deserialize, Serialize};
 
-use crate::corners::{CornerSet, intersect_three};
 use crate::error::Result;
-use crate::planes::PlaneSet;
+use crate::scan::corners::{CornerSet, intersect_three};
+use crate::scan::planes::PlaneSet;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -110,7 +110,7 @@ impl CornerFusion {
     /// The best-conditioned intersection of three planes that pass within the
     /// gate of `hit` and meet within the gate of it.
     fn corner_from_planes(&self, hit: &Vec3, planes: &PlaneSet) -> Option<Vec3> {
-        let near: Vec<&crate::planes::Plane> =
+        let near: Vec<&crate::scan::planes::Plane> =
             planes.planes.iter().filter(|p| p.signed_distance(hit).abs() < self.config.gate_m).collect();
         let mut best: Option<(f64, Vec3)> = None;
         for i in 0..near.len() {

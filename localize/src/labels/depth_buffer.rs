@@ -7,7 +7,7 @@
 use datasets::camera::PinholeCamera;
 use datasets::math::Pose3;
 
-use crate::point_map::MapPoint;
+use crate::estimation::point_map::MapPoint;
 
 pub struct DepthBuffer {
     /// Image pixels per buffer cell (each way).

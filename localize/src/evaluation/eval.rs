@@ -7,7 +7,7 @@ use datasets::formats::Trajectory;
 use datasets::math::Vec3;
 use serde::Serialize;
 
-use crate::similarity::{Similarity, umeyama};
+use crate::evaluation::similarity::{Similarity, umeyama};
 
 /// How the estimate is aligned to the reference before errors are taken.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, Serialize)]

@@ -16,7 +16,7 @@ use rustc_hash::FxHashMap;
 use serde::{Deserialize, Serialize};
 
 use crate::error::Result;
-use crate::normals::{PointNormal, smallest_eigenvector};
+use crate::scan::normals::{PointNormal, smallest_eigenvector};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]

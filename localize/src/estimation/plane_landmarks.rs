@@ -10,7 +10,7 @@
 use datasets::math::{Pose3, Vec3};
 use serde::{Deserialize, Serialize};
 
-use crate::planes::Plane;
+use crate::scan::planes::Plane;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -187,7 +187,7 @@ impl PlaneMap {
         let angle = l.normal.y.atan2(l.normal.x);
         let turns = ((angle - axis_angle) / quarter).round();
         let squared = axis_angle + turns * quarter;
-        if crate::euler::wrap(angle - squared).abs() > gate {
+        if crate::estimation::euler::wrap(angle - squared).abs() > gate {
             return (l.normal, l.distance);
         }
         let horizontal = l.normal.x.hypot(l.normal.y);
@@ -212,7 +212,7 @@ impl PlaneMap {
         let (mut sum, mut weight) = (0.0, 0.0);
         for (angle, w) in usable {
             let offset = angle - reference;
-            let gap = crate::euler::wrap(offset - (offset / quarter).round() * quarter);
+            let gap = crate::estimation::euler::wrap(offset - (offset / quarter).round() * quarter);
             if gap.abs() <= gate {
                 sum += w * gap;
                 weight += w;

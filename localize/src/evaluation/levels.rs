@@ -8,7 +8,7 @@ use datasets::formats::Trajectory;
 use datasets::math::Vec3;
 use datasets::{DataError, Result};
 
-use crate::eval::{Comparison, ErrorSummary};
+use crate::evaluation::eval::{Comparison, ErrorSummary};
 use serde::{Deserialize, Serialize};
 
 #[derive(Debug, Clone, Deserialize)]

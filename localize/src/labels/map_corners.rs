@@ -15,7 +15,7 @@ use datasets::InvalidSetting;
 use datasets::math::Vec3;
 use serde::{Deserialize, Serialize};
 
-use crate::point_map::MapPoint;
+use crate::estimation::point_map::MapPoint;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]

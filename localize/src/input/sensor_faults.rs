@@ -10,8 +10,8 @@ use std::path::PathBuf;
 use datasets::formats::{Calibration, ImuSample, OdometrySample, Trajectory};
 
 use crate::error::Result;
-use crate::sequence::RangeSensor;
-use crate::sequence::{FrameInput, SensorSequence};
+use crate::input::sequence::RangeSensor;
+use crate::input::sequence::{FrameInput, SensorSequence};
 
 /// The failures: scans lost in each gap (start and end, seconds after the
 /// first scan, end excluded), no image from `camera_stop_s` on, and the IMU
@@ -74,7 +74,7 @@ impl SensorSequence for WithChanges {
     fn range_sensor(&self) -> RangeSensor {
         self.inner.range_sensor()
     }
-    fn log_source(&self, log: crate::sequence::MotionLog) -> String {
+    fn log_source(&self, log: crate::input::sequence::MotionLog) -> String {
         self.inner.log_source(log)
     }
     fn ground_truth(&self) -> Option<&Trajectory> {

@@ -19,13 +19,13 @@ use image::DynamicImage;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
 
-use crate::corner_tracks::{CornerTrack, CornerTrackConfig};
-use crate::depth_buffer::DepthBuffer;
 use crate::error::Result;
-use crate::map_corners::{MapCornerConfig, map_corners};
-use crate::point_map::MapPoint;
+use crate::estimation::point_map::MapPoint;
+use crate::input::sequence::{SensorSequence, truth_at};
+use crate::labels::corner_tracks::{CornerTrack, CornerTrackConfig};
+use crate::labels::depth_buffer::DepthBuffer;
+use crate::labels::map_corners::{MapCornerConfig, map_corners};
 use crate::run::RunResult;
-use crate::sequence::{SensorSequence, truth_at};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -100,9 +100,9 @@ impl Default for AutolabelConfig {
 impl AutolabelConfig {
     /// The defaults for a 3D sensor: a depth camera sees furniture-sized
     /// scenes, whose faces (a cabinet's) spread less than a building's walls.
-    pub fn for_range(range: crate::sequence::RangeSensor) -> Self {
+    pub fn for_range(range: crate::input::sequence::RangeSensor) -> Self {
         let mut config = Self::default();
-        if range == crate::sequence::RangeSensor::DepthCamera {
+        if range == crate::input::sequence::RangeSensor::DepthCamera {
             config.tracks.min_plane_extent_m = 0.1;
         }
         config
@@ -681,7 +681,7 @@ pub fn autolabel(
         keep_image_edges: true,
         map: None,
     };
-    let run = crate::run::run_with(sequence, &mut crate::corner_source::CornerSource::Off, localize, options)?;
+    let run = crate::run::run_with(sequence, &mut crate::input::corner_source::CornerSource::Off, localize, options)?;
     let report = write_autolabels(out, sequence, &run, teacher, config, truth, show_progress)?;
     let truth_trajectory = crate::run::truth_in_run_frame(sequence, &run);
     let metrics = crate::run::metrics_against(sequence, &run, truth_trajectory.as_ref())?;
@@ -706,7 +706,7 @@ fn corners_ply(corners: &[LabelCorner]) -> Vec<u8> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::corner_tracks::{CornerTrackConfig, CornerTracks};
+    use crate::labels::corner_tracks::{CornerTrackConfig, CornerTracks};
 
     fn camera() -> datasets::camera::PinholeCamera {
         datasets::camera::PinholeCamera { width: 640, height: 480, fx: 500.0, fy: 500.0, cx: 319.5, cy: 239.5 }

@@ -13,8 +13,8 @@ use datasets::InvalidSetting;
 use datasets::math::{Mat3, Pose3, Vec3};
 use serde::{Deserialize, Serialize};
 
-use crate::geometry::Geometry;
-use crate::normals::smallest_eigenvector;
+use crate::scan::geometry::Geometry;
+use crate::scan::normals::smallest_eigenvector;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -89,7 +89,7 @@ pub fn read_floor(
         return None;
     }
     let world_from_lidar = predicted * robot_from_lidar;
-    let mut best: Option<(usize, &crate::planes::Plane)> = None;
+    let mut best: Option<(usize, &crate::scan::planes::Plane)> = None;
     for plane in &geometry.planes.planes {
         let up = world_from_lidar.rotation * plane.normal;
         let tilt_deg = up.z.abs().min(1.0).acos().to_degrees();
@@ -198,7 +198,7 @@ impl LeastSquares {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::planes::{Plane, PlaneSet};
+    use crate::scan::planes::{Plane, PlaneSet};
     use datasets::math::Rot3;
     use nalgebra::Point3;
 

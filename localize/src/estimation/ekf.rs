@@ -16,7 +16,7 @@ use datasets::math::{Pose3, Rot3, Vec3};
 use nalgebra::{SMatrix, SVector};
 use serde::{Deserialize, Serialize};
 
-use crate::euler::{rotation, wrap};
+use crate::estimation::euler::{rotation, wrap};
 
 pub const STATES: usize = 12;
 /// Index of the wheel speed scale in the state.

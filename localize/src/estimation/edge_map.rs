@@ -42,7 +42,7 @@ impl EdgeMap {
     }
 
     fn key(&self, p: &Vec3) -> [i32; 3] {
-        crate::point_map::voxel_key(p, self.voxel_m)
+        crate::estimation::point_map::voxel_key(p, self.voxel_m)
     }
 
     /// The squared distance from `query` to the cube of voxel `key`.

@@ -5,12 +5,12 @@ use std::time::Instant;
 use datasets::math::Vec3;
 use nalgebra::Point3;
 
-use crate::corners::{CornerConfig, CornerExtractor, CornerSet};
 use crate::error::{LocalizeError, Result};
-use crate::normals::{NormalConfig, NormalEstimator, PointNormal};
-use crate::planes::{PlaneConfig, PlaneExtractor, PlaneSet};
-use crate::scan_grid::ScanGrid;
-use crate::voxel::{VoxelConfig, VoxelFilter};
+use crate::scan::corners::{CornerConfig, CornerExtractor, CornerSet};
+use crate::scan::normals::{NormalConfig, NormalEstimator, PointNormal};
+use crate::scan::planes::{PlaneConfig, PlaneExtractor, PlaneSet};
+use crate::scan::scan_grid::ScanGrid;
+use crate::scan::voxel::{VoxelConfig, VoxelFilter};
 
 pub struct GeometryStages {
     voxel: VoxelFilter,

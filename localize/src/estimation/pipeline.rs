@@ -11,18 +11,18 @@ use datasets::math::{Pose3, Vec3};
 use nalgebra::Point3;
 
 use crate::config::LocalizeConfig;
-use crate::edge_map::EdgeMap;
-use crate::ekf::Ekf;
 use crate::error::Result;
-use crate::fusion::CornerFusion;
-use crate::geometry::{Geometry, GeometryStages};
-use crate::landmarks::LandmarkMap;
-use crate::level_floor::{LevelFloorConfig, read_floor};
-use crate::plane_landmarks::{PlaneMap, RobotPlane};
-use crate::point_map::PointMap;
-use crate::pose::{Correspondence, PlaneCorrespondence, PlaneSigmas, PoseSolver};
-use crate::relocalize::{Placement, RelocalizeConfig, relocalize};
-use crate::scan_match::{ScanFix, ScanMatcher, ScanPoints};
+use crate::estimation::edge_map::EdgeMap;
+use crate::estimation::ekf::Ekf;
+use crate::estimation::fusion::CornerFusion;
+use crate::estimation::landmarks::LandmarkMap;
+use crate::estimation::level_floor::{LevelFloorConfig, read_floor};
+use crate::estimation::plane_landmarks::{PlaneMap, RobotPlane};
+use crate::estimation::point_map::PointMap;
+use crate::estimation::pose::{Correspondence, PlaneCorrespondence, PlaneSigmas, PoseSolver};
+use crate::estimation::relocalize::{Placement, RelocalizeConfig, relocalize};
+use crate::estimation::scan_match::{ScanFix, ScanMatcher, ScanPoints};
+use crate::scan::geometry::{Geometry, GeometryStages};
 
 /// How a frame's pose was obtained, written to the per-frame log.
 #[derive(Debug, Clone, PartialEq)]
@@ -383,7 +383,7 @@ impl Localizer {
             return None;
         }
         let previous = self.previous_pose.as_ref();
-        let predicted = crate::ekf::pose_vector(&ekf.x);
+        let predicted = crate::estimation::ekf::pose_vector(&ekf.x);
         self.scan_matcher.register_after(&self.point_map, Some(&self.edge_map), scan, &predicted, previous)
     }
 

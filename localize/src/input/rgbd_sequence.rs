@@ -28,9 +28,9 @@ use nalgebra::{Matrix3, Point3};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{LocalizeError, Result};
-use crate::image_edges::{EdgeOptions, edge_points};
-use crate::sequence::RangeSensor;
-use crate::sequence::{FrameImage, FrameInput, SensorSequence, nearest_within};
+use crate::input::sequence::RangeSensor;
+use crate::input::sequence::{FrameImage, FrameInput, SensorSequence, nearest_within};
+use crate::scan::image_edges::{EdgeOptions, edge_points};
 
 /// How a depth image becomes a scan.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

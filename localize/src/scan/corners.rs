@@ -8,8 +8,8 @@ use nalgebra::Point3;
 use serde::{Deserialize, Serialize};
 
 use crate::error::Result;
-use crate::planes::{Plane, PlaneSet};
-use crate::scan_grid::ScanGrid;
+use crate::scan::planes::{Plane, PlaneSet};
+use crate::scan::scan_grid::ScanGrid;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]

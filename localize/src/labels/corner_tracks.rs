@@ -12,7 +12,7 @@ use serde::{Deserialize, Serialize};
 
 use datasets::InvalidSetting;
 
-use crate::geometry::Geometry;
+use crate::scan::geometry::Geometry;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]

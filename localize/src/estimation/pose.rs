@@ -10,10 +10,10 @@ use datasets::math::Vec3;
 use nalgebra::{DMatrix, DVector, Matrix6};
 use serde::{Deserialize, Serialize};
 
-use crate::ekf::{Covariance, Ekf, STATES, State, pose_of, pose_vector};
-use crate::euler::{rotation, wrap};
-use crate::scan_match::ScanFix;
-use crate::similarity::umeyama;
+use crate::estimation::ekf::{Covariance, Ekf, STATES, State, pose_of, pose_vector};
+use crate::estimation::euler::{rotation, wrap};
+use crate::estimation::scan_match::ScanFix;
+use crate::evaluation::similarity::umeyama;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]

@@ -7,8 +7,8 @@
 use datasets::formats::PointCloud;
 use datasets::math::Pose3;
 
-use crate::ekf::Ekf;
-use crate::sensor_replay::SensorReplay;
+use crate::estimation::ekf::Ekf;
+use crate::estimation::sensor_replay::SensorReplay;
 
 /// World-from-robot poses at chosen times around `stamp`.
 pub struct FrameMotion {
@@ -115,7 +115,7 @@ mod tests {
     use datasets::math::Vec3;
 
     use super::*;
-    use crate::ekf::EkfConfig;
+    use crate::estimation::ekf::EkfConfig;
 
     /// A robot driving straight along x at 1 m/s, level.
     fn logs() -> (Vec<OdometrySample>, Vec<ImuSample>) {

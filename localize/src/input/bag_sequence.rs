@@ -19,9 +19,9 @@ use datasets::recording::{RawMessage, Recording};
 use datasets::undistort::Undistorter;
 
 use crate::error::{LocalizeError, Result};
-use crate::rgbd_sequence::{DepthOptions, optical_from_body};
-use crate::sequence::RangeSensor;
-use crate::sequence::{FrameImage, FrameInput, MotionLog, SensorSequence, SyncConfig, nearest_within};
+use crate::input::rgbd_sequence::{DepthOptions, optical_from_body};
+use crate::input::sequence::RangeSensor;
+use crate::input::sequence::{FrameImage, FrameInput, MotionLog, SensorSequence, SyncConfig, nearest_within};
 
 /// Which topics and frames to use; `None` finds the topic by its type.
 #[derive(Debug, Clone, Default)]
@@ -537,7 +537,7 @@ impl BagSequence {
                 self.recording.topics[m.topic].name, m.index, depth.width, depth.height, camera.width, camera.height
             ));
         }
-        Ok(crate::rgbd_sequence::depth_scan(&depth, camera, &self.depth))
+        Ok(crate::input::rgbd_sequence::depth_scan(&depth, camera, &self.depth))
     }
 
     fn decode_image(&self, m: &RawMessage<'_>) -> std::result::Result<::image::DynamicImage, String> {

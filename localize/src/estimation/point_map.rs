@@ -9,7 +9,7 @@
 use datasets::math::{Mat3, Pose3, Vec3};
 use rustc_hash::FxHashMap;
 
-use crate::normals::smallest_eigenvector;
+use crate::scan::normals::smallest_eigenvector;
 
 /// A map point and the unit normal of the surface it lies on (world frame).
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -24,13 +24,13 @@ use indicatif::{ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
 
 use crate::config::LocalizeConfig;
-use crate::corner_source::CornerSource;
 use crate::error::{LocalizeError, Result};
-use crate::eval::{Alignment, ErrorSummary, compare};
+use crate::evaluation::eval::{Alignment, ErrorSummary, compare};
+use crate::input::corner_source::CornerSource;
+use crate::input::sensor_faults::{SensorFaults, WithChanges};
+use crate::input::sensor_set::SensorSet;
+use crate::input::sequence::RecordedSequence;
 use crate::run::{RunMetrics, metrics_against, run_sequence, truth_in_run_frame, write_outputs};
-use crate::sensor_faults::{SensorFaults, WithChanges};
-use crate::sensor_set::SensorSet;
-use crate::sequence::RecordedSequence;
 
 /// The LIDAR odometry systems `scripts/lidar_peers.py` runs.
 pub const PEERS: [&str; 2] = ["kiss-icp", "genz-icp"];
@@ -253,7 +253,8 @@ pub fn run_benchmark(
         bar.inc(1);
         // The peers' world, like a run's, is the robot at the first scan.
         let raw = sequence_truth(&sequence).expect("a generated sequence has ground truth");
-        let truth = &crate::sequence::relative_to(raw, &crate::sequence::truth_at(raw, sequence.frames[0].stamp));
+        let truth =
+            &crate::input::sequence::relative_to(raw, &crate::input::sequence::truth_at(raw, sequence.frames[0].stamp));
         let distance_m =
             truth.poses.windows(2).map(|w| (w[1].translation.vector - w[0].translation.vector).norm()).sum();
         let peers = PEERS
@@ -349,7 +350,7 @@ fn lidar_alone_into(dir: &Path, config: &LocalizeConfig) -> Result<RunMetrics> {
 fn localize_into(
     dir: &Path,
     name: &str,
-    sequence: &dyn crate::sequence::SensorSequence,
+    sequence: &dyn crate::input::sequence::SensorSequence,
     source: &mut CornerSource,
     config: &LocalizeConfig,
 ) -> Result<RunMetrics> {
@@ -365,7 +366,7 @@ fn localize_into(
 }
 
 fn sequence_truth(sequence: &RecordedSequence) -> Option<&datasets::formats::Trajectory> {
-    crate::sequence::SensorSequence::ground_truth(sequence)
+    crate::input::sequence::SensorSequence::ground_truth(sequence)
 }
 
 /// The errors of a peer's trajectory (robot frame, world at the first scan).

@@ -11,9 +11,9 @@ use nalgebra::{Matrix6, Vector6};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::euler::{rotation, wrap};
-use crate::point_map::PointMap;
-use crate::scan_match::{ScanMatchConfig, ScanMatcher, ScanPoints};
+use crate::estimation::euler::{rotation, wrap};
+use crate::estimation::point_map::PointMap;
+use crate::estimation::scan_match::{ScanMatchConfig, ScanMatcher, ScanPoints};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -195,7 +195,7 @@ pub fn relocalize(
             place(x)
         ));
     }
-    let pose = crate::ekf::pose_from_entries(&best);
+    let pose = crate::estimation::ekf::pose_from_entries(&best);
     let (metres, radians) = (config.search_radius_m.max(config.grid_m), config.yaw_step_deg.to_radians());
     let (m, r) = (metres.powi(-2), radians.powi(-2));
     let search = Matrix6::from_diagonal(&Vector6::new(m, m, m, r, r, r));

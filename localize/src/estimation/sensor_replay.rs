@@ -7,7 +7,7 @@
 use datasets::formats::{ImuSample, OdometrySample};
 use datasets::math::{Pose3, Vec3};
 
-use crate::ekf::{BodyMotion, Ekf, left_jacobian};
+use crate::estimation::ekf::{BodyMotion, Ekf, left_jacobian};
 
 /// The motion between the last two frames, carried on where nothing measures it.
 #[derive(Debug, Clone, Copy, Default)]
@@ -106,7 +106,7 @@ impl<'a> SensorReplay<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::ekf::EkfConfig;
+    use crate::estimation::ekf::EkfConfig;
 
     fn pose(x: f64, y: f64, yaw: f64) -> Pose3 {
         Pose3::new(Vec3::new(x, y, 0.0), Vec3::new(0.0, 0.0, yaw))

@@ -11,8 +11,8 @@ use std::fmt;
 use serde::{Deserialize, Serialize};
 
 use crate::config::LocalizeConfig;
-pub use crate::sequence::RangeSensor;
-use crate::sequence::SensorSequence;
+pub use crate::input::sequence::RangeSensor;
+use crate::input::sequence::SensorSequence;
 
 /// The sensors a run uses.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

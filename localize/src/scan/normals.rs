@@ -9,7 +9,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{LocalizeError, Result};
-use crate::scan_grid::{NeighbourScratch, ScanGrid};
+use crate::scan::scan_grid::{NeighbourScratch, ScanGrid};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
