@@ -11,7 +11,7 @@ use burn::tensor::activation::softmax;
 
 use crate::anchors::AnchorConfig;
 use crate::boxes::{BBox, BoxCoder, batched_nms, nms, remove_small};
-use crate::conv_op::{conv2d, conv2d_relu};
+use crate::kernels::conv_op::{conv2d, conv2d_relu};
 use crate::roi_align::roi_align;
 use crate::trunk::{Trunk, TrunkConfig};
 

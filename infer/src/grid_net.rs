@@ -15,7 +15,7 @@ use burn::nn::pool::{AdaptiveAvgPool2d, AdaptiveAvgPool2dConfig};
 use burn::nn::{Dropout, DropoutConfig, Initializer, Linear, LinearConfig, Relu};
 use burn::prelude::*;
 
-use crate::conv_op::{conv2d, conv2d_relu};
+use crate::kernels::conv_op::{conv2d, conv2d_relu};
 use crate::trunk::{Architecture, Trunk, TrunkConfig, replace_value};
 use serde::{Deserialize, Serialize};
 

@@ -2,30 +2,24 @@
 //! operations, anchors, RoIAlign, the three networks, checkpoints, detection
 //! on an image and evaluation.
 
-pub mod allocator;
 pub mod anchors;
 pub mod backend;
 pub mod boxes;
 pub mod checkpoint;
 pub mod config;
-pub mod conv_kernels;
-pub mod conv_op;
 pub mod corner_response;
-pub mod cpu_kernels;
 pub mod detector;
 pub mod detector_args;
-pub mod direct_conv;
 pub mod eval;
 pub mod faster_rcnn;
 pub mod grid_net;
+pub mod kernels;
 pub mod labeled;
-pub mod max_pool_native;
 pub mod metrics;
 pub mod network;
 pub mod point_eval;
 pub mod pretrained;
 pub mod roi_align;
-pub mod roi_align_native;
 pub mod trunk;
 
 pub use config::{Backbone, DetectorConfig};

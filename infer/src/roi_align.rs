@@ -11,7 +11,7 @@ use burn::tensor::DType;
 use burn::tensor::ops::{GridSampleOptions, GridSamplePaddingMode, InterpolateMode};
 
 use crate::boxes::BBox;
-use crate::{cpu_kernels, roi_align_native};
+use crate::kernels::{cpu_kernels, roi_align_native};
 
 /// Pools each of `rois` (in feature-map pixels) from one feature map
 /// `[1, C, H, W]` to `[K, C, output, output]`. Each output bin averages

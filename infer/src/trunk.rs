@@ -12,8 +12,8 @@ use burn::nn::{Initializer, PaddingConfig2d, Relu};
 use burn::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::conv_op::conv2d_relu;
-use crate::max_pool_native::max_pool2d;
+use crate::kernels::conv_op::conv2d_relu;
+use crate::kernels::max_pool_native::max_pool2d;
 
 /// Which of torchvision's two trunks.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

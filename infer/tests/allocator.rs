@@ -26,7 +26,7 @@ fn large_blocks_come_from_the_heap_once_the_settings_are_applied() {
     // dynamic threshold to its size).
     assert!(mapped_growth(16 * MIB) >= 16 * MIB, "glibc's default should map a 16 MiB block");
     // A 24 MiB block, above that raised threshold, would be mapped too...
-    assert!(infer::allocator::keep_freed_memory(), "glibc refused the settings");
+    assert!(infer::kernels::allocator::keep_freed_memory(), "glibc refused the settings");
     // ...but with the settings it comes from the heap, and so does a block
     // above glibc's largest fixed threshold (32 MiB). (This test's thread
     // has an arena of its own, whose heaps hold at most 64 MiB: glibc maps

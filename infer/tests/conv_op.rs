@@ -6,7 +6,7 @@ use burn::module::Param;
 use burn::nn::PaddingConfig2d;
 use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::prelude::*;
-use infer::conv_op::{gemm_conv2d, gemm_conv2d_relu};
+use infer::kernels::conv_op::{gemm_conv2d, gemm_conv2d_relu};
 use rand::rngs::ChaCha8Rng;
 use rand::{RngExt, SeedableRng};
 

@@ -5,7 +5,7 @@
 use burn::nn::pool::{MaxPool2d, MaxPool2dConfig};
 use burn::prelude::*;
 use burn::tensor::activation::relu;
-use infer::max_pool_native::max_pool2d;
+use infer::kernels::max_pool_native::max_pool2d;
 use rand::rngs::ChaCha8Rng;
 use rand::{RngExt, SeedableRng};
 

@@ -63,7 +63,7 @@ impl Optimizer for FusedAdamW {
     ) -> (Tensor<D>, Option<Self::State<D>>) {
         let device = tensor.device();
         let amsgrad = state.as_ref().is_some_and(|s| s.momentum.max_moment_2.is_some());
-        if !infer::cpu_kernels::is_flex(&device)
+        if !infer::kernels::cpu_kernels::is_flex(&device)
             || tensor.dtype() != DType::F32
             || grad.dtype() != DType::F32
             || amsgrad

@@ -102,7 +102,7 @@ struct ImageDetections<'a> {
 
 fn main() -> std::process::ExitCode {
     // Training and detection free and reallocate the same large buffers.
-    infer::allocator::keep_freed_memory();
+    infer::kernels::allocator::keep_freed_memory();
     datasets::cli::exit_code(run_main())
 }
 

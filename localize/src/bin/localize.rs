@@ -283,7 +283,7 @@ struct EvalArgs {
 
 fn main() -> std::process::ExitCode {
     // Training and detection free and reallocate the same large buffers.
-    infer::allocator::keep_freed_memory();
+    infer::kernels::allocator::keep_freed_memory();
     let cli = Cli::parse();
     datasets::cli::exit_code(match cli.command {
         Command::Eval(args) => eval(&args),

@@ -60,7 +60,7 @@ struct Args {
 
 fn main() -> std::process::ExitCode {
     // Training and detection free and reallocate the same large buffers.
-    infer::allocator::keep_freed_memory();
+    infer::kernels::allocator::keep_freed_memory();
     datasets::cli::exit_code(run_main())
 }
 

@@ -94,7 +94,7 @@ fn cpu_seconds() -> f64 {
 /// Images per second and cores in use over `steps` timed steps (median step
 /// time), after `warmup` steps.
 fn time_steps(model: Model, batch: usize, warmup: usize, steps: usize, gemm: bool) -> Timing {
-    infer::cpu_kernels::set_enabled(gemm);
+    infer::kernels::cpu_kernels::set_enabled(gemm);
     let device = Device::flex().autodiff();
     device.seed(1);
     let mut net = Classifier::new(model, &device);
@@ -128,7 +128,7 @@ fn time_steps(model: Model, batch: usize, warmup: usize, steps: usize, gemm: boo
         times.push(phases);
     }
     let cores = (cpu_seconds() - cpu_start) / wall_start.elapsed().as_secs_f64();
-    infer::cpu_kernels::set_enabled(true);
+    infer::kernels::cpu_kernels::set_enabled(true);
     times.sort_by(|a, b| a.iter().sum::<f64>().total_cmp(&b.iter().sum::<f64>()));
     let median = times[times.len() / 2];
     Timing { images_per_s: batch as f64 / median.iter().sum::<f64>(), cores, phases_s: median }

@@ -33,7 +33,7 @@ pub fn run(
     json: bool,
     burn_kernels: bool,
 ) -> Result<()> {
-    infer::cpu_kernels::set_enabled(!burn_kernels);
+    infer::kernels::cpu_kernels::set_enabled(!burn_kernels);
     if let Some(backbone) = only {
         let f = measure(backbone, backend, width, batch, steps)?;
         println!("{}", serde_json::to_string(&f)?);
@@ -73,7 +73,7 @@ fn measure(backbone: Backbone, backend: ComputeBackend, width: f32, batch: usize
     let device = backend.device()?.autodiff();
     let mut network = Network::new(&config, &device);
     // Burn as it comes (its AdamW) or the project's fused AdamW, as training uses.
-    let mut optim = if infer::cpu_kernels::enabled() {
+    let mut optim = if infer::kernels::cpu_kernels::enabled() {
         train::fused_adamw::FusedAdamW::new(1e-4).init(None)
     } else {
         burn::optim::AdamWConfig::new().init()

@@ -22,7 +22,7 @@ use burn::tensor::DType;
 use rayon::prelude::*;
 
 use crate::boxes::BBox;
-use crate::cpu_kernels::with_values;
+use crate::kernels::cpu_kernels::with_values;
 
 /// The sizes of one RoIAlign call: a feature map [C, H, W] pooled to
 /// `output x output` bins of `sampling x sampling` samples each.

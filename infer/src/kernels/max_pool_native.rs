@@ -23,7 +23,7 @@ use burn::prelude::*;
 use burn::tensor::DType;
 use rayon::prelude::*;
 
-use crate::cpu_kernels::{self, with_values};
+use crate::kernels::cpu_kernels::{self, with_values};
 
 /// The sizes of one pooling call: `planes` maps (batch x channels) of
 /// `height x width`, a square `kernel` moved by `stride`, no padding.

@@ -13,7 +13,7 @@
 use gemm::Parallelism;
 use rayon::prelude::*;
 
-use crate::direct_conv;
+use crate::kernels::direct_conv;
 
 /// The sizes of one convolution. `padding` is the padding before each
 /// spatial axis; padding after it only shows in `out_hw`.

@@ -20,8 +20,8 @@ use burn::nn::conv::Conv2d;
 use burn::prelude::*;
 use burn::tensor::DType;
 
-use crate::conv_kernels::{self, ConvGeometry};
-use crate::cpu_kernels::{self, with_values};
+use crate::kernels::conv_kernels::{self, ConvGeometry};
+use crate::kernels::cpu_kernels::{self, with_values};
 
 /// `conv.forward(x)`: through the GEMM kernels unless the project's kernels
 /// are turned off (`cpu_kernels::set_enabled`).

@@ -15,7 +15,7 @@
 
 use rayon::prelude::*;
 
-use crate::conv_kernels::ConvGeometry;
+use crate::kernels::conv_kernels::ConvGeometry;
 
 /// Output channels up to which the direct kernel beats im2col + GEMM
 /// (`bench conv`; above it the GEMM's deeper products win).
@@ -537,7 +537,7 @@ mod avx2 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::conv_kernels::{forward_im2col, weight_grad_im2col};
+    use crate::kernels::conv_kernels::{forward_im2col, weight_grad_im2col};
 
     fn values(len: usize, seed: u64) -> Vec<f32> {
         use rand::{RngExt, SeedableRng};
