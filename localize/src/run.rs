@@ -2,6 +2,7 @@
 //! odometry/IMU reference, the per-frame log and (with ground truth) the
 //! metrics out.
 
+use crate::input::frame_fault::FrameFault;
 use std::fmt::Write as _;
 use std::path::Path;
 use std::time::Instant;
@@ -143,7 +144,7 @@ pub fn run_with(
         placement: None,
         corner_tracks: track_corners.map(CornerTracks::new),
     };
-    let mut unreadable: Vec<String> = Vec::new();
+    let mut unreadable: Vec<FrameFault> = Vec::new();
     let mut detector_clock = DetectorClock { rate_hz: config.sync.detector_rate_hz, last: None };
     let robot_from_camera = calibration.robot_from_camera();
     let lidar_from_robot = calibration.robot_from_lidar.inverse();
@@ -175,7 +176,7 @@ pub fn run_with(
         let camera_off = matches!(source, CornerSource::Off);
         let image = image
             .and_then(|i| i.image)
-            .and_then(|image| if camera_off { Err("camera left out".to_string()) } else { Ok(image) })
+            .and_then(|image| if camera_off { Err(FrameFault::CameraOff) } else { Ok(image) })
             .and_then(|image| detector_clock.take(stamp).map(|()| image));
         // The cloud's geometry and the detector are independent until fusion:
         // run them side by side, so each fills the cores the other leaves idle.
@@ -254,10 +255,10 @@ struct DetectorClock {
 
 impl DetectorClock {
     /// Whether the detector runs on the frame at `stamp`; why not otherwise.
-    fn take(&mut self, stamp: f64) -> std::result::Result<(), String> {
+    fn take(&mut self, stamp: f64) -> std::result::Result<(), FrameFault> {
         // A tenth of the period of slack: a driver's scan stamps jitter.
         if self.rate_hz > 0.0 && self.last.is_some_and(|last| stamp - last < 0.9 / self.rate_hz) {
-            return Err(format!("detector at {} Hz: this image skipped", self.rate_hz));
+            return Err(FrameFault::DetectorSkipped { rate_hz: self.rate_hz });
         }
         self.last = Some(stamp);
         Ok(())
@@ -542,7 +543,7 @@ mod tests {
         let taken: Vec<f64> = stamps.iter().copied().filter(|&t| clock.take(t).is_ok()).collect();
         assert_eq!(taken, [0.0, 0.2001, 0.3898, 0.6, 0.8]);
         let why = clock.take(0.85).unwrap_err();
-        assert!(why.contains("5 Hz"), "{why}");
+        assert_eq!(why, FrameFault::DetectorSkipped { rate_hz: 5.0 });
         let mut every = DetectorClock { rate_hz: 0.0, last: None };
         assert!(stamps.iter().all(|&t| every.take(t).is_ok()));
     }

@@ -12,6 +12,7 @@ use datasets::math::Pose3;
 use localize::config::LocalizeConfig;
 use localize::estimation::pipeline::FrameStatus;
 use localize::input::corner_source::CornerSource;
+use localize::input::frame_fault::FrameFault;
 use localize::input::sequence::RecordedSequence;
 use localize::run::run_sequence;
 use nalgebra::Point3;
@@ -80,9 +81,12 @@ fn a_corrupt_cloud_is_a_per_frame_fallback_and_the_run_goes_on() {
     let result = run_sequence(&sequence, &mut source, &LocalizeConfig::default(), false).unwrap();
     assert_eq!(result.trajectory.len(), 3);
     // Labels stand in for a detector: without an image they give no corners.
-    let no_image = |s: &FrameStatus| matches!(s, FrameStatus::NoImage { why, .. } if why.contains("no image within"));
+    let no_image = |s: &FrameStatus| matches!(s, FrameStatus::NoImage { why: FrameFault::NoImageNear { .. }, .. });
     assert!(no_image(&result.frames[0].status), "{:?}", result.frames[0].status);
-    assert!(matches!(&result.frames[1].status, FrameStatus::BadCloud(why) if why.contains("1.000000.pcd")));
+    assert!(matches!(
+        &result.frames[1].status,
+        FrameStatus::BadCloud(FrameFault::Unreadable(why)) if why.contains("1.000000.pcd")
+    ));
     assert!(no_image(&result.frames[2].status), "{:?}", result.frames[2].status);
     assert_eq!(result.frames[2].planes, 5, "floor and four walls");
     // A still robot stays where it started.
@@ -128,7 +132,7 @@ fn frames_without_images_fall_back_and_say_why() {
     assert_eq!(result.trajectory.len(), 3);
     for (frame, stamp) in result.frames.iter().zip(["0.000000", "1.000000", "2.000000"]) {
         let FrameStatus::NoImage { why, walls, scan } = &frame.status else { panic!("{:?}", frame.status) };
-        assert!(why.contains(&format!("no image within 0.05 s of scan {stamp}")), "{why}");
+        assert!(why.to_string().contains(&format!("no image within 0.05 s of scan {stamp}")), "{why}");
         // The walls are not trusted yet after so few frames; the scan
         // registers against the first frame's points from the second on.
         assert_eq!(*walls, 0);
@@ -283,9 +287,10 @@ fn an_image_of_another_size_than_the_calibration_says_so_in_its_frame() {
     let result = run_sequence(&sequence, &mut source, &LocalizeConfig::default(), false).unwrap();
     let FrameStatus::NoImage { why, .. } = &result.frames[1].status else { panic!("{:?}", result.frames[1].status) };
     assert!(
-        why.contains("1.000000.png") && why.contains("image is 320x240, the calibration's camera is 640x480"),
-        "{why}"
+        matches!(why, FrameFault::WrongSize { source, size: [320, 240], expected: [640, 480], .. } if source.contains("1.000000.png")),
+        "{why:?}"
     );
+    assert!(why.to_string().contains("image is 320x240, the calibration's camera is 640x480"), "{why}");
 }
 
 #[test]
@@ -327,16 +332,16 @@ fn labels_give_no_corners_for_an_unreadable_image_or_one_they_do_not_list() {
         source.corners(&stem, loaded.as_ref().and_then(|r| r.as_ref().ok())).0
     };
     assert_eq!(corners(0), Ok(vec![]), "listed, without corners");
-    assert_eq!(corners(1), Err("no image".to_string()), "the image does not decode");
-    assert!(corners(2).unwrap_err().contains("not in the labels file"));
+    assert_eq!(corners(1), Err(FrameFault::NoImage), "the image does not decode");
+    assert_eq!(corners(2), Err(FrameFault::NotInLabels { stem: "2.000000".into() }));
     // Through the whole run, the corrupt image is that frame's reason.
     let result = run_sequence(&sequence, &mut source, &LocalizeConfig::default(), false).unwrap();
     assert!(
-        matches!(&result.frames[1].status, FrameStatus::NoImage { why, .. } if why.contains("1.000000.png")),
+        matches!(&result.frames[1].status, FrameStatus::NoImage { why: FrameFault::Unreadable(why), .. } if why.contains("1.000000.png")),
         "{:?}",
         result.frames[1].status
     );
-    assert!(matches!(&result.frames[2].status, FrameStatus::NoImage { why, .. } if why.contains("not in the labels")));
+    assert!(matches!(&result.frames[2].status, FrameStatus::NoImage { why: FrameFault::NotInLabels { .. }, .. }));
 }
 
 #[test]

@@ -694,14 +694,14 @@ fn run(args: &RunArgs) -> Result<()> {
         (reasons.len(), reasons.into_iter().next())
     };
     let (n, first) = lost(&|s| match s {
-        FrameStatus::NoImage { why, .. } => Some(why.clone()),
+        FrameStatus::NoImage { why, .. } => Some(why.to_string()),
         _ => None,
     });
     if let Some(why) = first {
         eprintln!("warning: {n} of {} frames had no 2D corners, the first because: {why}", result.frames.len());
     }
     let (n, first) = lost(&|s| match s {
-        FrameStatus::BadCloud(why) => Some(why.clone()),
+        FrameStatus::BadCloud(why) => Some(why.to_string()),
         _ => None,
     });
     if let Some(why) = first {

@@ -4,6 +4,7 @@
 //! associated with the landmark map and correct the filter, and the map
 //! grows with them.
 
+use crate::input::frame_fault::FrameFault;
 use std::time::Instant;
 
 use datasets::formats::{Calibration, PointCloud};
@@ -36,9 +37,9 @@ pub enum FrameStatus {
     TooFewMatches { corners: usize, walls: usize },
     /// No 2D corners (no image, or it failed): corrected by this many walls
     /// and scan points alone, or (both 0) the odometry/IMU pose kept.
-    NoImage { why: String, walls: usize, scan: usize },
+    NoImage { why: FrameFault, walls: usize, scan: usize },
     /// Kept the odometry/IMU pose: the cloud was unusable.
-    BadCloud(String),
+    BadCloud(FrameFault),
 }
 
 impl FrameStatus {
@@ -156,7 +157,7 @@ fn in_world(in_robot: &[Vec3], pose: &Pose3) -> Vec<Vec3> {
 /// A frame's 2D corners and where the camera was when it saw them.
 pub struct CameraCorners {
     /// The detected corners (or why there are none).
-    pub pixels: std::result::Result<Vec<[f64; 2]>, String>,
+    pub pixels: std::result::Result<Vec<[f64; 2]>, FrameFault>,
     /// The camera at the image's own time, seen from the LIDAR at the scan's.
     pub lidar_from_camera: Pose3,
     /// The detector's own time.
@@ -261,15 +262,15 @@ impl Localizer {
     /// the detector does (`run_sequence` runs the two side by side).
     pub fn frame_geometry(
         &self,
-        cloud: std::result::Result<PointCloud, String>,
-    ) -> std::result::Result<Geometry, String> {
+        cloud: std::result::Result<PointCloud, FrameFault>,
+    ) -> std::result::Result<Geometry, FrameFault> {
         let cloud = match cloud {
-            Ok(c) if c.is_empty() => return Err("no finite points".into()),
+            Ok(c) if c.is_empty() => return Err(FrameFault::NoFinitePoints),
             Ok(c) => c,
             Err(why) => return Err(why),
         };
         let sensor = cloud.viewpoint.translation.vector;
-        self.geometry.run(&cloud.points, &sensor).map_err(|e| e.to_string())
+        self.geometry.run(&cloud.points, &sensor).map_err(|e| FrameFault::Geometry(e.to_string()))
     }
 
     /// Processes one frame whose filter has been advanced to its time:
@@ -280,7 +281,7 @@ impl Localizer {
         &mut self,
         stamp: f64,
         ekf: &mut Ekf,
-        geometry: std::result::Result<Geometry, String>,
+        geometry: std::result::Result<Geometry, FrameFault>,
         camera: CameraCorners,
         started: Instant,
     ) -> FrameReport {
@@ -355,7 +356,7 @@ impl Localizer {
         planes: &[RobotPlane],
         walls: &[PlaneCorrespondence],
         scan: Option<&ScanFix>,
-        why: String,
+        why: FrameFault,
     ) -> FrameStatus {
         let corrected = !first && self.solver.correct_with_planes(ekf, &[], walls, self.plane_sigmas(), scan).is_some();
         self.observe_planes(planes, &ekf.pose());

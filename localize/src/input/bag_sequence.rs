@@ -6,6 +6,7 @@
 //!
 //! Every time is the sensor's header stamp on the recording's own clock.
 
+use crate::input::frame_fault::FrameFault;
 use std::collections::{HashMap, VecDeque};
 use std::path::{Path, PathBuf};
 
@@ -529,41 +530,46 @@ impl BagSequence {
         &self,
         m: &RawMessage<'_>,
         camera: &PinholeCamera,
-    ) -> std::result::Result<datasets::formats::PointCloud, String> {
-        let depth = self.recording.decode(m, image::depth_image).map_err(|e| e.to_string())?.depth;
+    ) -> std::result::Result<datasets::formats::PointCloud, FrameFault> {
+        let depth =
+            self.recording.decode(m, image::depth_image).map_err(|e| FrameFault::Unreadable(e.to_string()))?.depth;
         if (depth.width, depth.height) != (camera.width, camera.height) {
-            return Err(format!(
-                "topic {}, message {}: depth image is {}x{}, its camera_info says {}x{}",
-                self.recording.topics[m.topic].name, m.index, depth.width, depth.height, camera.width, camera.height
-            ));
+            return Err(FrameFault::WrongSize {
+                source: format!("topic {}, message {}", self.recording.topics[m.topic].name, m.index),
+                what: "depth image",
+                size: [depth.width, depth.height],
+                reference: "its camera_info says",
+                expected: [camera.width, camera.height],
+            });
         }
         Ok(crate::input::rgbd_sequence::depth_scan(&depth, camera, &self.depth))
     }
 
-    fn decode_image(&self, m: &RawMessage<'_>) -> std::result::Result<::image::DynamicImage, String> {
+    fn decode_image(&self, m: &RawMessage<'_>) -> std::result::Result<::image::DynamicImage, FrameFault> {
         let kind = self.recording.topics[m.topic].kind();
         let decoded = match kind {
             Some(MessageKind::CompressedImage) => self.recording.decode(m, image::compressed_image),
             _ => self.recording.decode(m, image::image),
         }
-        .map_err(|e| e.to_string())?;
+        .map_err(|e| FrameFault::Unreadable(e.to_string()))?;
         let camera = &self.calibration.camera;
         let im = match &self.undistort {
-            Some(u) => u
-                .apply(&decoded.image)
-                .map_err(|e| format!("topic {} message {}: {e}", self.recording.topics[m.topic].name, m.index))?,
+            Some(u) => u.apply(&decoded.image).map_err(|e| {
+                FrameFault::Unreadable(format!(
+                    "topic {} message {}: {e}",
+                    self.recording.topics[m.topic].name, m.index
+                ))
+            })?,
             None => decoded.image,
         };
         if im.width() != camera.width || im.height() != camera.height {
-            return Err(format!(
-                "topic {}, message {}: image is {}x{}, the camera is {}x{}",
-                self.recording.topics[m.topic].name,
-                m.index,
-                im.width(),
-                im.height(),
-                camera.width,
-                camera.height
-            ));
+            return Err(FrameFault::WrongSize {
+                source: format!("topic {}, message {}", self.recording.topics[m.topic].name, m.index),
+                what: "image",
+                size: [im.width(), im.height()],
+                reference: "the camera is",
+                expected: [camera.width, camera.height],
+            });
         }
         Ok(im)
     }
@@ -612,8 +618,8 @@ impl SensorSequence for BagSequence {
             *image_users.entry(self.images[*j].index).or_default() += 1;
         }
         let image_slot: HashMap<u64, usize> = self.images.iter().enumerate().map(|(j, s)| (s.index, j)).collect();
-        let mut held: HashMap<usize, std::result::Result<::image::DynamicImage, String>> = HashMap::new();
-        let mut pending: VecDeque<(usize, std::result::Result<datasets::formats::PointCloud, String>)> =
+        let mut held: HashMap<usize, std::result::Result<::image::DynamicImage, FrameFault>> = HashMap::new();
+        let mut pending: VecDeque<(usize, std::result::Result<datasets::formats::PointCloud, FrameFault>)> =
             VecDeque::new();
         let wanted: Vec<usize> = [Some(self.roles.lidar), self.roles.image].into_iter().flatten().collect();
         let mut flush = |pending: &mut VecDeque<_>,
@@ -624,22 +630,19 @@ impl SensorSequence for BagSequence {
             while let Some((k, _)) = pending.front() {
                 let k: usize = *k;
                 let image = match self.pairs[k] {
-                    None => Err(format!("no image within {} s of scan {:.6}", self.tolerance_s, self.scans[k].stamp)),
+                    None => Err(FrameFault::no_image_near(self.tolerance_s, self.scans[k].stamp)),
                     Some(j) if !held.contains_key(&j) => {
                         if !all {
                             // Its image comes later in the file: wait for it.
                             return Ok(());
                         }
-                        Err(format!(
-                            "image message {} of the scan at {:.6} never came",
-                            self.images[j].index, self.scans[k].stamp
-                        ))
+                        Err(FrameFault::ImageNeverCame { message: self.images[j].index, stamp: self.scans[k].stamp })
                     }
                     Some(j) => {
                         let users = image_users.entry(self.images[j].index).or_default();
                         *users = users.saturating_sub(1);
                         // The last scan that takes an image takes it over; earlier ones copy it.
-                        let image: std::result::Result<::image::DynamicImage, String> =
+                        let image: std::result::Result<::image::DynamicImage, FrameFault> =
                             if *users == 0 { held.remove(&j).expect("held") } else { held[&j].clone() };
                         Ok(FrameImage {
                             stamp: self.images[j].stamp,
@@ -660,9 +663,11 @@ impl SensorSequence for BagSequence {
                 let Some(&k) = scan_of.get(&m.index) else { return Ok(()) };
                 let cloud = match &self.depth_camera {
                     Some(camera) => self.depth_cloud(&m, camera),
-                    None => {
-                        self.recording.decode(&m, point_cloud::point_cloud2).map(|c| c.cloud).map_err(|e| e.to_string())
-                    }
+                    None => self
+                        .recording
+                        .decode(&m, point_cloud::point_cloud2)
+                        .map(|c| c.cloud)
+                        .map_err(|e| FrameFault::Unreadable(e.to_string())),
                 };
                 pending.push_back((k, cloud));
             } else if let Some(&j) = image_slot.get(&m.index)

@@ -3,6 +3,7 @@
 //! seeded pixel noise, to test the rest of the pipeline apart from the detector;
 //! or none (the camera left out: LIDAR and odometry/IMU alone).
 
+use crate::input::frame_fault::FrameFault;
 use std::collections::HashMap;
 use std::path::Path;
 use std::time::Instant;
@@ -68,7 +69,7 @@ impl CornerSource {
         &mut self,
         stem: &str,
         image: Option<&DynamicImage>,
-    ) -> (std::result::Result<Vec<[f64; 2]>, String>, f64) {
+    ) -> (std::result::Result<Vec<[f64; 2]>, FrameFault>, f64) {
         let start = Instant::now();
         let found = match self {
             Self::Detector { detector, min_score } => match image {
@@ -81,19 +82,19 @@ impl CornerSource {
                         [x as f64, y as f64]
                     })
                     .collect()),
-                None => Err("no image".to_string()),
+                None => Err(FrameFault::NoImage),
             },
             // Labels stand in for the detector, so they need the image the
             // detector would have seen: no image, no corners.
             Self::Labels { by_image, noise_px, rng } => match (image, by_image.get(stem)) {
-                (None, _) => Err("no image".to_string()),
-                (Some(_), None) => Err(format!("image `{stem}` is not in the labels file")),
+                (None, _) => Err(FrameFault::NoImage),
+                (Some(_), None) => Err(FrameFault::NotInLabels { stem: stem.to_string() }),
                 (Some(_), Some(points)) => Ok(points
                     .iter()
                     .map(|&[x, y]| [x + *noise_px * gaussian(rng), y + *noise_px * gaussian(rng)])
                     .collect()),
             },
-            Self::Off => Err("camera left out".to_string()),
+            Self::Off => Err(FrameFault::CameraOff),
         };
         (found, start.elapsed().as_secs_f64() * 1e3)
     }

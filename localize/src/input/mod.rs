@@ -2,6 +2,7 @@
 
 pub mod bag_sequence;
 pub mod corner_source;
+pub mod frame_fault;
 pub mod rgbd_sequence;
 pub mod sensor_faults;
 pub mod sensor_set;

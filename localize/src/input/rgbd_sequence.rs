@@ -17,6 +17,7 @@
 //! up), the "LIDAR" is the depth camera there, and the ground truth is put
 //! in that frame, so that a run's trajectory and the truth compare as they are.
 
+use crate::input::frame_fault::FrameFault;
 use std::path::{Path, PathBuf};
 
 use datasets::camera::PinholeCamera;
@@ -228,18 +229,17 @@ impl RgbdSequence {
     }
 
     /// The depth image at `path`, of the depth camera's size.
-    fn depth(&self, path: &Path) -> std::result::Result<DepthImage, String> {
-        let depth = read_depth_png(path, self.units_per_metre).map_err(|e| e.to_string())?;
+    fn depth(&self, path: &Path) -> std::result::Result<DepthImage, FrameFault> {
+        let depth = read_depth_png(path, self.units_per_metre).map_err(|e| FrameFault::Unreadable(e.to_string()))?;
         let camera = &self.depth_camera;
         if (depth.width, depth.height) != (camera.width, camera.height) {
-            return Err(format!(
-                "{}: depth image is {}x{}, the depth camera's is {}x{}",
-                path.display(),
-                depth.width,
-                depth.height,
-                camera.width,
-                camera.height
-            ));
+            return Err(FrameFault::WrongSize {
+                source: path.display().to_string(),
+                what: "depth image",
+                size: [depth.width, depth.height],
+                reference: "the depth camera's is",
+                expected: [camera.width, camera.height],
+            });
         }
         Ok(depth)
     }
@@ -429,10 +429,12 @@ impl SensorSequence for RgbdSequence {
         for frame in &self.frames {
             let image = match &frame.image {
                 Some((stamp, path)) => Ok(FrameImage::read(*stamp, path, &self.calibration.camera)),
-                None => Err(format!(
-                    "no colour image within {} s of depth image {:.6}",
-                    self.image_tolerance_s, frame.stamp
-                )),
+                None => Err(FrameFault::NoImageNear {
+                    image: "colour image",
+                    tolerance_s: self.image_tolerance_s,
+                    scan: "depth image",
+                    stamp: frame.stamp,
+                }),
             };
             let depth = self.depth(&frame.depth);
             let edges = match (&depth, &image) {

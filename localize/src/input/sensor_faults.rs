@@ -5,6 +5,7 @@
 //! clock and a generated sequence's. `WithChanges` plays them in, and
 //! replaces the ground truth with `--gt`'s.
 
+use crate::input::frame_fault::FrameFault;
 use std::path::PathBuf;
 
 use datasets::formats::{Calibration, ImuSample, OdometrySample, Trajectory};
@@ -96,7 +97,7 @@ impl SensorSequence for WithChanges {
             if let Some(stop) = self.faults.camera_stop_s
                 && frame.image.as_ref().is_ok_and(|image| image.stamp - first >= stop)
             {
-                frame.image = Err(format!("the camera stopped {stop} s after the first scan (--camera-stop)"));
+                frame.image = Err(FrameFault::CameraStopped { after_s: stop });
             }
             visit(frame)
         })

@@ -11,6 +11,7 @@
 //! order, e.g. `0000000010.500000`) or, with 16 digits or more and no
 //! point, in nanoseconds; the clouds and the images keep their own clocks.
 
+use crate::input::frame_fault::FrameFault;
 use std::path::{Path, PathBuf};
 
 use datasets::InvalidSetting;
@@ -71,7 +72,7 @@ pub struct FrameImage {
     pub stamp: f64,
     /// The key of the image for labels (`--corners-from-labels`): its file stem.
     pub name: String,
-    pub image: std::result::Result<DynamicImage, String>,
+    pub image: std::result::Result<DynamicImage, FrameFault>,
 }
 
 impl FrameImage {
@@ -79,20 +80,20 @@ impl FrameImage {
     /// `camera`'s size: corners of an image of another size would land on
     /// the wrong rays.
     pub fn read(stamp: f64, path: &Path, camera: &datasets::camera::PinholeCamera) -> Self {
-        let image = datasets::atomic::read_image(path).map_err(|e| e.to_string()).and_then(|im| {
-            if (im.width(), im.height()) == (camera.width, camera.height) {
-                Ok(im)
-            } else {
-                Err(format!(
-                    "{}: image is {}x{}, the calibration's camera is {}x{}",
-                    path.display(),
-                    im.width(),
-                    im.height(),
-                    camera.width,
-                    camera.height
-                ))
-            }
-        });
+        let image =
+            datasets::atomic::read_image(path).map_err(|e| FrameFault::Unreadable(e.to_string())).and_then(|im| {
+                if (im.width(), im.height()) == (camera.width, camera.height) {
+                    Ok(im)
+                } else {
+                    Err(FrameFault::WrongSize {
+                        source: path.display().to_string(),
+                        what: "image",
+                        size: [im.width(), im.height()],
+                        reference: "the calibration's camera is",
+                        expected: [camera.width, camera.height],
+                    })
+                }
+            });
         let name = path.file_stem().and_then(|s| s.to_str()).unwrap_or_default().to_string();
         Self { stamp, name, image }
     }
@@ -118,9 +119,9 @@ impl std::fmt::Display for MotionLog {
 pub struct FrameInput {
     /// The scan's time: the frame's time in the trajectory.
     pub stamp: f64,
-    pub cloud: std::result::Result<PointCloud, String>,
+    pub cloud: std::result::Result<PointCloud, FrameFault>,
     /// Why there is none when there is none.
-    pub image: std::result::Result<FrameImage, String>,
+    pub image: std::result::Result<FrameImage, FrameFault>,
     /// Edge points in the 3D sensor's frame (`image_edges`): only an RGB-D
     /// frame whose colour is registered to its depth has them.
     pub edges: Vec<nalgebra::Point3<f32>>,
@@ -296,10 +297,10 @@ impl SensorSequence for RecordedSequence {
     }
     fn for_each_frame(&self, visit: &mut dyn FnMut(FrameInput) -> Result<()>) -> Result<()> {
         for frame in &self.frames {
-            let cloud = read_cloud(&frame.cloud, NonFinite::Drop).map_err(|e| e.to_string());
+            let cloud = read_cloud(&frame.cloud, NonFinite::Drop).map_err(|e| FrameFault::Unreadable(e.to_string()));
             let image = match &frame.image {
                 Some(file) => Ok(FrameImage::read(file.stamp, &file.path, &self.calibration.camera)),
-                None => Err(format!("no image within {} s of scan {:.6}", self.image_tolerance_s, frame.stamp)),
+                None => Err(FrameFault::no_image_near(self.image_tolerance_s, frame.stamp)),
             };
             visit(FrameInput { stamp: frame.stamp, cloud, image, edges: Vec::new() })?;
         }
