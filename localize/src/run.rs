@@ -2,7 +2,6 @@
 //! odometry/IMU reference, the per-frame log and (with ground truth) the
 //! metrics out.
 
-use crate::input::frame_fault::FrameFault;
 use std::fmt::Write as _;
 use std::path::Path;
 use std::time::Instant;
@@ -22,6 +21,7 @@ use crate::estimation::sensor_replay::SensorReplay;
 use crate::evaluation::eval::{Alignment, ErrorSummary, compare};
 use crate::evaluation::levels::{LevelMap, SegmentMetrics};
 use crate::input::corner_source::CornerSource;
+use crate::input::frame_fault::FrameFault;
 use crate::input::sequence::{FrameInput, SensorSequence, relative_to, truth_at};
 use crate::labels::corner_tracks::{CornerTrackConfig, CornerTracks, structural_corners};
 

@@ -239,3 +239,34 @@ fn a_recording_of_depth_images_alone_is_localized_as_the_folder_is() {
     assert_eq!((m.frames, m.corrected_frames), (16, 15));
     assert!(m.fused.overall.ate_rmse < 0.01, "ATE {} m", m.fused.overall.ate_rmse);
 }
+
+#[test]
+fn the_colour_camera_fitted_to_tums_registered_depth_is_its_published_one() {
+    // TUM fr3 publishes its colour intrinsics (fx 535.4, fy 539.2, cx 320.1,
+    // cy 247.6) and registers depth to colour: a fit from the depth's
+    // contours must land there, offset-free. What it misses here bounds its
+    // error on 7-Scenes, whose colour camera is not registered.
+    let tum = RgbdSequence::open(&shared("tum_fr3_cabinet_keyframes"), &DepthOptions::default(), 0.05).unwrap();
+    let fit = tum.fit_colour_camera(10).unwrap();
+    assert!((fit.camera.fx - 537.3).abs() < 2.0, "{fit:?}");
+    assert!((fit.camera.cx - 320.1).abs() < 4.0 && (fit.camera.cy - 247.6).abs() < 5.0, "{fit:?}");
+    assert!(fit.baseline_m.abs() < 0.01, "{fit:?}");
+    assert!(fit.mean_distance_px < fit.unregistered_distance_px, "{fit:?}");
+    // 7-Scenes' Kinect: the colour camera's focal length is well below the
+    // depth camera's 585, and the fit lays its contours closer to the edges.
+    let seven = RgbdSequence::open(&shared("seven_scenes_rgbd"), &DepthOptions::default(), 0.05).unwrap();
+    let fit = seven.fit_colour_camera(10).unwrap();
+    assert!((500.0..560.0).contains(&fit.camera.fx), "{fit:?}");
+    assert!(fit.mean_distance_px < 0.85 * fit.unregistered_distance_px, "{fit:?}");
+    // Its calibration moves the colour camera, not the depth's points.
+    let calibration = RgbdSequence::calibration_of(&fit);
+    let moved = seven.with_colour_calibration(calibration.clone(), Path::new("calib.json")).unwrap();
+    assert_eq!(moved.calibration().camera, calibration.camera);
+    let small = datasets::formats::Calibration {
+        camera: datasets::camera::PinholeCamera { width: 320, height: 240, ..calibration.camera.clone() },
+        ..calibration
+    };
+    let seven = RgbdSequence::open(&shared("seven_scenes_rgbd"), &DepthOptions::default(), 0.05).unwrap();
+    let Err(refused) = seven.with_colour_calibration(small, Path::new("small.json")) else { panic!("accepted") };
+    assert!(refused.to_string().contains("small.json") && refused.to_string().contains("320x240"), "{refused}");
+}

@@ -36,6 +36,9 @@ enum Command {
     Autolabel(Box<AutolabelArgs>),
     /// Prints what a recording holds (as `ros2 bag info` does) and which topic each role would take.
     Inspect(InspectArgs),
+    /// Fits the colour camera of an RGB-D folder whose colour is not registered to its depth
+    /// (7-Scenes): writes a calib.json for `--calib`.
+    RegisterColour(RegisterColourArgs),
     /// Prints the planes and 3D corners of one point cloud (PCD, PLY or KITTI .bin).
     Planes(PlanesArgs),
     /// Milliseconds per frame of each stage on M8-like scans and on dense 100k-point scans.
@@ -155,7 +158,8 @@ struct InputArgs {
     bag: Option<PathBuf>,
     #[command(flatten)]
     topics: TopicArgs,
-    /// A calib.json that replaces the recording's /tf_static and camera_info.
+    /// A calib.json that replaces a bag's /tf_static and camera_info, or an
+    /// RGB-D folder's colour camera (`localize register-colour` fits one).
     #[arg(long)]
     calib: Option<PathBuf>,
     /// Ground truth (TUM, KITTI or EuRoC) instead of the recording's.
@@ -243,6 +247,19 @@ struct AutolabelArgs {
 }
 
 #[derive(clap::Args)]
+struct RegisterColourArgs {
+    /// An RGB-D folder (TUM RGB-D or 7-Scenes layout).
+    #[arg(long)]
+    sequence: PathBuf,
+    /// The calib.json to write.
+    #[arg(long)]
+    out: PathBuf,
+    /// Frames spread over the sequence whose contours are fitted.
+    #[arg(long, default_value_t = 10, value_parser = datasets::cli::positive_count)]
+    frames: usize,
+}
+
+#[derive(clap::Args)]
 #[command(allow_negative_numbers = true)]
 struct PlanesArgs {
     cloud: PathBuf,
@@ -291,6 +308,7 @@ fn main() -> std::process::ExitCode {
         Command::Run(args) => run(&args),
         Command::Autolabel(args) => autolabel(&args),
         Command::Inspect(args) => inspect(&args),
+        Command::RegisterColour(args) => register_colour(&args),
         Command::Bench(args) => bench(&args),
         Command::Benchmark(args) => benchmark(&args),
     })
@@ -532,9 +550,17 @@ fn open_input(
     let config = defaults_over(&assumed)?;
     let mut sequence: Box<dyn SensorSequence> = match (&input.sequence, &input.bag) {
         (Some(dir), _) if RgbdSequence::layout_of(dir).is_some() => {
-            let sequence = RgbdSequence::open(dir, &config.depth, config.sync.image_tolerance_s)?;
+            let mut sequence = RgbdSequence::open(dir, &config.depth, config.sync.image_tolerance_s)?;
             println!("{}: RGB-D folder ({:?} layout)", dir.display(), sequence.layout);
+            if let Some(path) = &input.calib {
+                let calibration = datasets::formats::read_calibration(path)?;
+                sequence = sequence.with_colour_calibration(calibration, path)?;
+                println!("colour camera from {}", path.display());
+            }
             Box::new(sequence)
+        }
+        (Some(dir), _) if input.calib.is_some() => {
+            anyhow::bail!("--calib: {} is a sequence folder, whose calib.json is its calibration", dir.display())
         }
         (Some(dir), _) => Box::new(RecordedSequence::open_with(dir, &config.sync)?),
         (None, Some(bag)) => {
@@ -985,4 +1011,31 @@ fn bench_decoding(repeats: usize) -> serde_json::Value {
         assert_eq!(decode(Encoding::Cdr, &png_image, image::compressed_image).expect("valid").image.width(), 640)
     });
     serde_json::json!({"cloud_10k_ms": cloud_ms, "image_bgr8_ms": raw_ms, "image_png_ms": png_ms})
+}
+
+fn register_colour(args: &RegisterColourArgs) -> Result<()> {
+    if RgbdSequence::layout_of(&args.sequence).is_none() {
+        anyhow::bail!(
+            "{}: not an RGB-D folder (TUM's rgb.txt and depth.txt, or 7-Scenes' frames)",
+            args.sequence.display()
+        );
+    }
+    datasets::atomic::check_writable(args.out.parent().unwrap_or(Path::new(".")))?;
+    let sequence = RgbdSequence::open(&args.sequence, &Default::default(), 0.05)?;
+    let fit = sequence.fit_colour_camera(args.frames)?;
+    println!(
+        "colour camera over {} frames ({} contour points): fx = fy = {:.1}, cx {:.1}, cy {:.1}, baseline {:.3} m; \
+         contours {:.2} px from the colour edges (unregistered: {:.2} px)",
+        fit.frames,
+        fit.contour_points,
+        fit.camera.fx,
+        fit.camera.cx,
+        fit.camera.cy,
+        fit.baseline_m,
+        fit.mean_distance_px,
+        fit.unregistered_distance_px
+    );
+    datasets::formats::write_calibration(&args.out, &RgbdSequence::calibration_of(&fit))?;
+    println!("wrote {} (use it with --calib)", args.out.display());
+    Ok(())
 }

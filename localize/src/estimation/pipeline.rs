@@ -4,7 +4,6 @@
 //! associated with the landmark map and correct the filter, and the map
 //! grows with them.
 
-use crate::input::frame_fault::FrameFault;
 use std::time::Instant;
 
 use datasets::formats::{Calibration, PointCloud};
@@ -23,6 +22,7 @@ use crate::estimation::point_map::PointMap;
 use crate::estimation::pose::{Correspondence, PlaneCorrespondence, PlaneSigmas, PoseSolver};
 use crate::estimation::relocalize::{Placement, RelocalizeConfig, relocalize};
 use crate::estimation::scan_match::{ScanFix, ScanMatcher, ScanPoints};
+use crate::input::frame_fault::FrameFault;
 use crate::scan::geometry::{Geometry, GeometryStages};
 
 /// How a frame's pose was obtained, written to the per-frame log.

@@ -6,7 +6,6 @@
 //!
 //! Every time is the sensor's header stamp on the recording's own clock.
 
-use crate::input::frame_fault::FrameFault;
 use std::collections::{HashMap, VecDeque};
 use std::path::{Path, PathBuf};
 
@@ -20,6 +19,7 @@ use datasets::recording::{RawMessage, Recording};
 use datasets::undistort::Undistorter;
 
 use crate::error::{LocalizeError, Result};
+use crate::input::frame_fault::FrameFault;
 use crate::input::rgbd_sequence::{DepthOptions, optical_from_body};
 use crate::input::sequence::RangeSensor;
 use crate::input::sequence::{FrameImage, FrameInput, MotionLog, SensorSequence, SyncConfig, nearest_within};

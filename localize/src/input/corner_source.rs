@@ -3,7 +3,6 @@
 //! seeded pixel noise, to test the rest of the pipeline apart from the detector;
 //! or none (the camera left out: LIDAR and odometry/IMU alone).
 
-use crate::input::frame_fault::FrameFault;
 use std::collections::HashMap;
 use std::path::Path;
 use std::time::Instant;
@@ -15,6 +14,7 @@ use rand::rngs::ChaCha8Rng;
 use rand::{RngExt, SeedableRng};
 
 use crate::error::Result;
+use crate::input::frame_fault::FrameFault;
 
 pub enum CornerSource {
     Detector {

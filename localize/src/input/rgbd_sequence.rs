@@ -17,7 +17,6 @@
 //! up), the "LIDAR" is the depth camera there, and the ground truth is put
 //! in that frame, so that a run's trajectory and the truth compare as they are.
 
-use crate::input::frame_fault::FrameFault;
 use std::path::{Path, PathBuf};
 
 use datasets::camera::PinholeCamera;
@@ -29,6 +28,7 @@ use nalgebra::{Matrix3, Point3};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{LocalizeError, Result};
+use crate::input::frame_fault::FrameFault;
 use crate::input::sequence::RangeSensor;
 use crate::input::sequence::{FrameImage, FrameInput, SensorSequence, nearest_within};
 use crate::scan::image_edges::{EdgeOptions, edge_points};
@@ -269,6 +269,62 @@ pub fn depth_scan(depth: &DepthImage, camera: &PinholeCamera, options: &DepthOpt
         .map(|p| (body_from_optical * p.cast::<f64>()).cast::<f32>())
         .collect::<Vec<Point3<f32>>>();
     PointCloud::new(points, None)
+}
+
+impl RgbdSequence {
+    /// The colour camera fitted to the depth's contours (`colour_registration`)
+    /// on `frames` frames spread over the sequence.
+    pub fn fit_colour_camera(&self, frames: usize) -> Result<crate::input::colour_registration::ColourFit> {
+        use crate::input::colour_registration::{ContourFrame, fit_colour_camera};
+        let with_images: Vec<&RgbdFrame> = self.frames.iter().filter(|f| f.image.is_some()).collect();
+        if with_images.is_empty() {
+            return Err(error(&self.dir, "no frame has a colour image to fit the colour camera to"));
+        }
+        let step = with_images.len().div_ceil(frames.max(1));
+        let mut samples = Vec::new();
+        for frame in with_images.iter().step_by(step) {
+            let depth = read_depth_png(&frame.depth, self.units_per_metre)?;
+            let Some((_, path)) = &frame.image else { continue };
+            let colour = datasets::atomic::read_image(path)?.to_luma8();
+            samples.push(ContourFrame::new(&depth, &self.depth_camera, &colour, 0.1));
+        }
+        Ok(fit_colour_camera(&samples, &self.depth_camera))
+    }
+
+    /// The calibration of a fit: the colour camera offset along the depth
+    /// camera's x by the fitted baseline.
+    pub fn calibration_of(fit: &crate::input::colour_registration::ColourFit) -> Calibration {
+        let offset = Pose3::from_parts(nalgebra::Translation3::new(fit.baseline_m, 0.0, 0.0), Rot3::identity());
+        Calibration {
+            camera: fit.camera.clone(),
+            camera_from_lidar: offset * optical_from_body(),
+            robot_from_lidar: Pose3::identity(),
+        }
+    }
+
+    /// The sequence with its colour camera as `calibration` says (`--calib`:
+    /// a colour camera that is not registered to the depth); the depth
+    /// camera, and so the 3D points, stay as they were.
+    pub fn with_colour_calibration(mut self, calibration: Calibration, path: &Path) -> Result<Self> {
+        let (old, new) = (&self.calibration.camera, &calibration.camera);
+        if (old.width, old.height) != (new.width, new.height) {
+            return Err(error(
+                path,
+                format!(
+                    "its camera is {}x{}, the colour images are {}x{}",
+                    new.width, new.height, old.width, old.height
+                ),
+            ));
+        }
+        if calibration.robot_from_lidar != Pose3::identity() {
+            return Err(error(
+                path,
+                "robot_from_lidar must be the identity for an RGB-D folder (the depth camera is the body)",
+            ));
+        }
+        self.calibration = calibration;
+        Ok(self)
+    }
 }
 
 /// The calibration of an RGB-D camera whose colour image is registered to

@@ -5,12 +5,12 @@
 //! clock and a generated sequence's. `WithChanges` plays them in, and
 //! replaces the ground truth with `--gt`'s.
 
-use crate::input::frame_fault::FrameFault;
 use std::path::PathBuf;
 
 use datasets::formats::{Calibration, ImuSample, OdometrySample, Trajectory};
 
 use crate::error::Result;
+use crate::input::frame_fault::FrameFault;
 use crate::input::sequence::RangeSensor;
 use crate::input::sequence::{FrameInput, SensorSequence};
 

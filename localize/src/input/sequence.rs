@@ -11,7 +11,6 @@
 //! order, e.g. `0000000010.500000`) or, with 16 digits or more and no
 //! point, in nanoseconds; the clouds and the images keep their own clocks.
 
-use crate::input::frame_fault::FrameFault;
 use std::path::{Path, PathBuf};
 
 use datasets::InvalidSetting;
@@ -24,6 +23,7 @@ use image::DynamicImage;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{LocalizeError, Result};
+use crate::input::frame_fault::FrameFault;
 
 /// How frames take their images and their points' times.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
