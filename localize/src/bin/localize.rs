@@ -647,6 +647,13 @@ fn autolabel(args: &AutolabelArgs) -> Result<()> {
         if report.occlusion_checked { "" } else { " (no point map: occlusion not checked)" }
     );
     println!(
+        "{} ignore regions where the 3D sensor cannot tell ({} unsure 3D corners{}), {} teacher labels",
+        report.ignore_regions,
+        report.unsure_corners,
+        if report.teacher { " and the teacher's unconfirmed detections" } else { "; no teacher" },
+        report.teacher_labels
+    );
+    println!(
         "expected pixel error (standard error of each corner's position, projected): median {:.2} px, 90% below {:.2} px",
         report.expected_error_px.median, report.expected_error_px.p90
     );
