@@ -15,7 +15,7 @@ use crate::config::LocalizeConfig;
 use crate::error::Result;
 use crate::estimation::ekf::Ekf;
 use crate::estimation::motion::FrameMotion;
-use crate::estimation::pipeline::{CameraCorners, FrameReport, Localizer};
+use crate::estimation::pipeline::{CameraCorners, FrameReport, FrameStatus, Localizer};
 use crate::estimation::relocalize::{Placement, keyframes_along};
 use crate::estimation::sensor_replay::SensorReplay;
 use crate::evaluation::eval::{Alignment, ErrorSummary, compare};
@@ -404,6 +404,75 @@ pub fn log_gaps(sequence: &dyn SensorSequence) -> Vec<(crate::input::sequence::M
             (longest > 10.0 * typical && longest > MIN_LOG_GAP_S).then_some((name, longest, stamps[k + 1]))
         })
         .collect()
+}
+
+/// What a finished run should warn about: frames that lost their corners or
+/// their cloud (how many, and the first one's fault: frames.csv has every
+/// frame's), a LIDAR gap, holes in the motion logs, ground truth that gave
+/// no metrics.
+pub fn run_warnings(sequence: &dyn SensorSequence, result: &RunResult, metrics: Option<&RunMetrics>) -> Vec<String> {
+    let mut out = Vec::new();
+    if sequence.ground_truth().is_some() && result.truth_origin.is_none() {
+        out.push(
+            "the map was written by a run without ground truth, so this run's ground truth cannot be put in the \
+             map's frame: no metrics.json"
+                .to_string(),
+        );
+    } else if sequence.ground_truth().is_some() && metrics.is_none() {
+        out.push("the ground truth does not overlap the run's times (within 0.01 s): no metrics.json".to_string());
+    }
+    let n = result.frames.len();
+    let no_corners: Vec<_> = result
+        .frames
+        .iter()
+        .filter_map(|f| if let FrameStatus::NoImage { why, .. } = &f.status { Some(why) } else { None })
+        .collect();
+    if let Some(why) = no_corners.first() {
+        out.push(format!("{} of {n} frames had no 2D corners, the first because: {why}", no_corners.len()));
+    }
+    let bad_clouds: Vec<_> = result
+        .frames
+        .iter()
+        .filter_map(|f| if let FrameStatus::BadCloud(why) = &f.status { Some(why) } else { None })
+        .collect();
+    if let Some(why) = bad_clouds.first() {
+        out.push(format!("{} of {n} frames had no usable cloud, the first because: {why}", bad_clouds.len()));
+    }
+    if let Some((gap, stamp)) = longest_scan_gap(&result.frames) {
+        out.push(format!("no scan for {gap:.2} s before the scan at {stamp:.3} (odometry/IMU carried the pose)"));
+    }
+    for (log, gap, stamp) in log_gaps(sequence) {
+        let source = sequence.log_source(log);
+        out.push(format!(
+            "{log} ({source}) has no sample for {gap:.2} s before {stamp:.3} s (the motion across it is interpolated)"
+        ));
+    }
+    out
+}
+
+/// The run's metrics as the terminal shows them: frames, then RMSE per axis
+/// and ATE per level for the fused trajectory, the odometry/IMU reference
+/// (`with_reference`: left out where the rig has neither) and the
+/// SE3-aligned fused one.
+pub fn metrics_table(m: &RunMetrics, with_reference: bool) -> String {
+    let mut out = format!(
+        "{} frames, {} corrected ({} with the camera's corners), {:.1} ms per frame\n",
+        m.frames, m.corrected_frames, m.fused_frames, m.mean_total_ms
+    );
+    let row = |out: &mut String, name: &str, s: &ErrorSummary| {
+        let _ = writeln!(out, "{:<22} {:>8.4} {:>8.4} {:>8.4} {:>8.4}", name, s.rmse_x, s.rmse_y, s.rmse_z, s.ate_rmse);
+    };
+    let _ = writeln!(out, "{:<22} {:>8} {:>8} {:>8} {:>8}", "", "rmse_x", "rmse_y", "rmse_z", "ate");
+    let reference = with_reference.then_some(("odometry/IMU", &m.odometry_imu));
+    for (name, t) in [("fused", &m.fused)].into_iter().chain(reference) {
+        for (level, s) in t.levels.iter().map(|l| (l.name.as_str(), &l.errors)).chain([("all", &t.overall)]) {
+            row(&mut out, &format!("{name} {level}"), s);
+        }
+    }
+    if let Some(s) = &m.fused_se3_aligned {
+        row(&mut out, "fused, SE3-aligned", s);
+    }
+    out
 }
 
 /// Shorter holes in a log are not reported (a 50 Hz log's jitter).

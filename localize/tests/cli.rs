@@ -186,6 +186,12 @@ fn run_on_a_bag_writes_the_trajectory_in_the_recording_clock_and_its_metrics() {
         serde_json::from_str(&std::fs::read_to_string(out_dir.join("metrics.json")).unwrap()).unwrap();
     assert_eq!(metrics["frames"], 10);
     assert_eq!(metrics["fused"]["overall"]["matched"], 10);
+    // The terminal's table says what metrics.json says.
+    let ate = metrics["fused"]["overall"]["ate_rmse"].as_f64().unwrap();
+    let row = stdout.lines().find(|l| l.starts_with("fused all")).unwrap_or_else(|| panic!("{stdout}"));
+    let printed: f64 = row.split_whitespace().last().unwrap().parse().unwrap();
+    assert!((printed - ate).abs() < 5e-5, "{row} vs {ate}");
+    assert!(stdout.lines().any(|l| l.starts_with("odometry/IMU all")), "{stdout}");
     // Simulated faults count from the first scan, whatever the recording's clock.
     let faulty = dir.path().join("faulty");
     let out = run(&faulty, &["--lidar-gap", "0.25:0.55"]);

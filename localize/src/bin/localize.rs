@@ -8,7 +8,6 @@ use clap::{Parser, Subcommand};
 use datasets::formats::read_trajectory;
 use infer::detector_args::{BackendArg, DetectorArgs, SHIPPED_CHECKPOINT};
 use localize::config::LocalizeConfig;
-use localize::estimation::pipeline::FrameStatus;
 use localize::evaluation::eval::{Alignment, ErrorSummary, compare};
 use localize::evaluation::levels::LevelMap;
 use localize::input::bag_sequence::{BagOptions, BagSequence};
@@ -712,69 +711,12 @@ fn run(args: &RunArgs) -> Result<()> {
     let metrics = metrics_against(&*sequence, &result, truth.as_ref())?;
     write_outputs(&args.out, &config, &result, truth.as_ref(), metrics.as_ref())?;
     println!("wrote {}", args.out.join("trajectory.txt").display());
-    if sequence.ground_truth().is_some() && result.truth_origin.is_none() {
-        eprintln!(
-            "warning: the map was written by a run without ground truth, so this run's ground truth cannot be put \
-             in the map's frame: no metrics.json"
-        );
-    } else if sequence.ground_truth().is_some() && metrics.is_none() {
-        eprintln!("warning: the ground truth does not overlap the run's times (within 0.01 s): no metrics.json");
+    for warning in localize::run::run_warnings(&*sequence, &result, metrics.as_ref()) {
+        eprintln!("warning: {warning}");
     }
-    // Frames that lost their corners or their cloud, with the first reason:
-    // frames.csv has every frame's.
-    let lost = |pick: &dyn Fn(&FrameStatus) -> Option<String>| {
-        let reasons: Vec<String> = result.frames.iter().filter_map(|f| pick(&f.status)).collect();
-        (reasons.len(), reasons.into_iter().next())
-    };
-    let (n, first) = lost(&|s| match s {
-        FrameStatus::NoImage { why, .. } => Some(why.to_string()),
-        _ => None,
-    });
-    if let Some(why) = first {
-        eprintln!("warning: {n} of {} frames had no 2D corners, the first because: {why}", result.frames.len());
-    }
-    let (n, first) = lost(&|s| match s {
-        FrameStatus::BadCloud(why) => Some(why.to_string()),
-        _ => None,
-    });
-    if let Some(why) = first {
-        eprintln!("warning: {n} of {} frames had no usable cloud, the first because: {why}", result.frames.len());
-    }
-    if let Some((gap, stamp)) = localize::run::longest_scan_gap(&result.frames) {
-        eprintln!("warning: no scan for {gap:.2} s before the scan at {stamp:.3} (odometry/IMU carried the pose)");
-    }
-    for (log, gap, stamp) in localize::run::log_gaps(&*sequence) {
-        let source = sequence.log_source(log);
-        eprintln!(
-            "warning: {log} ({source}) has no sample for {gap:.2} s before {stamp:.3} s (the motion across it is interpolated)"
-        );
-    }
-    if let Some(m) = metrics {
-        println!(
-            "{} frames, {} corrected ({} with the camera's corners), {:.1} ms per frame",
-            m.frames, m.corrected_frames, m.fused_frames, m.mean_total_ms
-        );
-        println!("{:<22} {:>8} {:>8} {:>8} {:>8}", "", "rmse_x", "rmse_y", "rmse_z", "ate");
+    if let Some(m) = &metrics {
         // Without odometry or IMU the reference is the start pose held: nothing to show.
-        let reference = (sensors.imu || sensors.wheels).then_some(("odometry/IMU", &m.odometry_imu));
-        for (name, t) in [("fused", &m.fused)].into_iter().chain(reference) {
-            for (level, s) in t.levels.iter().map(|l| (l.name.as_str(), &l.errors)).chain([("all", &t.overall)]) {
-                println!(
-                    "{:<22} {:>8.4} {:>8.4} {:>8.4} {:>8.4}",
-                    format!("{name} {level}"),
-                    s.rmse_x,
-                    s.rmse_y,
-                    s.rmse_z,
-                    s.ate_rmse
-                );
-            }
-        }
-        if let Some(s) = &m.fused_se3_aligned {
-            println!(
-                "{:<22} {:>8.4} {:>8.4} {:>8.4} {:>8.4}",
-                "fused, SE3-aligned", s.rmse_x, s.rmse_y, s.rmse_z, s.ate_rmse
-            );
-        }
+        print!("{}", localize::run::metrics_table(m, sensors.imu || sensors.wheels));
     }
     Ok(())
 }
