@@ -5,3 +5,4 @@ pub mod eval;
 pub mod levels;
 pub mod plot;
 pub mod similarity;
+pub mod stage_bench;
