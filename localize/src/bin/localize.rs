@@ -628,41 +628,7 @@ fn autolabel(args: &AutolabelArgs) -> Result<()> {
         truth.as_ref(),
         progress,
     )?;
-    println!(
-        "{} images ({} train, {} test), {} labels: {:.1} per image (median {}, {} to {}); {} persistent corners of {} \
-         followed over the scans and {} more in the map, {} labels hidden by the map{}",
-        report.images,
-        report.train_images,
-        report.test_images,
-        report.labels,
-        report.labels_per_image.mean,
-        report.labels_per_image.median,
-        report.labels_per_image.min,
-        report.labels_per_image.max,
-        report.persistent_corners,
-        report.tracks,
-        report.map_corners,
-        report.hidden,
-        if report.occlusion_checked { "" } else { " (no point map: occlusion not checked)" }
-    );
-    println!(
-        "{} ignore regions where the 3D sensor cannot tell ({} unsure 3D corners{}), {} teacher labels",
-        report.ignore_regions,
-        report.unsure_corners,
-        if report.teacher { " and the teacher's unconfirmed detections" } else { "; no teacher" },
-        report.teacher_labels
-    );
-    println!(
-        "expected pixel error (standard error of each corner's position, projected): median {:.2} px, 90% below {:.2} px",
-        report.expected_error_px.median, report.expected_error_px.p90
-    );
-    for s in &report.against_truth {
-        println!(
-            "against the true labels ({} images, within {} px): precision {:.3}, recall {:.3} ({} of {} labels, {} true; \
-             median error {:.2} px)",
-            s.images, s.radius_px, s.precision, s.recall, s.matched, s.labels, s.true_labels, s.median_error_px
-        );
-    }
+    print!("{}", report.summary());
     if let Some(m) = localize::run::metrics(&*sequence, &run)? {
         println!("the run the labels came from: ATE {:.4} m over {} frames", m.fused.overall.ate_rmse, m.frames);
     }

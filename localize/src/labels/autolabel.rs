@@ -428,6 +428,57 @@ pub struct AutolabelReport {
     pub config: AutolabelConfig,
 }
 
+impl AutolabelReport {
+    /// What `localize autolabel` prints: labels, corners, ignore regions,
+    /// expected error, and the scores against true labels when there are some.
+    pub fn summary(&self) -> String {
+        use std::fmt::Write as _;
+        let report = self;
+        let mut out = String::new();
+        let _ = writeln!(
+            out,
+            "{} images ({} train, {} test), {} labels: {:.1} per image (median {}, {} to {}); {} persistent corners of {} \
+             followed over the scans and {} more in the map, {} labels hidden by the map{}",
+            report.images,
+            report.train_images,
+            report.test_images,
+            report.labels,
+            report.labels_per_image.mean,
+            report.labels_per_image.median,
+            report.labels_per_image.min,
+            report.labels_per_image.max,
+            report.persistent_corners,
+            report.tracks,
+            report.map_corners,
+            report.hidden,
+            if report.occlusion_checked { "" } else { " (no point map: occlusion not checked)" }
+        );
+        let _ = writeln!(
+            out,
+            "{} ignore regions where the 3D sensor cannot tell ({} unsure 3D corners{}), {} teacher labels",
+            report.ignore_regions,
+            report.unsure_corners,
+            if report.teacher { " and the teacher's unconfirmed detections" } else { "; no teacher" },
+            report.teacher_labels
+        );
+        let _ = writeln!(
+            out,
+            "expected pixel error (standard error of each corner's position, projected): median {:.2} px, 90% below {:.2} px",
+            report.expected_error_px.median, report.expected_error_px.p90
+        );
+        for s in &report.against_truth {
+            let _ = writeln!(
+                out,
+                "against the true labels ({} images, within {} px): precision {:.3}, recall {:.3} ({} of {} labels, {} true; \
+                 median error {:.2} px)",
+                s.images, s.radius_px, s.precision, s.recall, s.matched, s.labels, s.true_labels, s.median_error_px
+            );
+        }
+
+        out
+    }
+}
+
 /// One labelled image.
 pub struct LabelledImage {
     pub name: String,
@@ -605,16 +656,7 @@ pub fn write_autolabels(
         datasets::atomic::write_bytes(&dir.join("corners.ply"), &corners_ply(&corners.labels))?;
         let counts: Vec<f64> = entries.iter().map(|(_, l)| l.labels.len() as f64).collect();
         let errors: Vec<f64> = entries.iter().flat_map(|(_, l)| l.labels.iter().map(|a| a.expected_error_px)).collect();
-        let against_truth = truth.map_or_else(Vec::new, |truth| {
-            let labelled: Vec<(String, Vec<[f64; 2]>)> = entries
-                .iter()
-                .map(|(image, labels)| {
-                    let name = Path::new(&image.file_name).file_stem().and_then(|s| s.to_str()).unwrap_or_default();
-                    (name.to_string(), labels.labels.iter().map(|l| l.point).collect())
-                })
-                .collect();
-            [1.0, 2.0].map(|k| score_labels(&labelled, truth, k * config.match_radius_px)).to_vec()
-        });
+        let against_truth = truth.map_or_else(Vec::new, |truth| scores_at_two_radii(&entries, truth, config));
         let r = AutolabelReport {
             images: entries.len(),
             train_images: train.images.len(),
@@ -639,6 +681,23 @@ pub fn write_autolabels(
         Ok(())
     })?;
     Ok(report.expect("written"))
+}
+
+/// The 3D labels scored against true labels within the match radius and
+/// twice it (a label a few pixels farther still frames its corner).
+fn scores_at_two_radii(
+    entries: &[(CocoImage, ImageLabels)],
+    truth: &CocoDataset,
+    config: &AutolabelConfig,
+) -> Vec<LabelScore> {
+    let labelled: Vec<(String, Vec<[f64; 2]>)> = entries
+        .iter()
+        .map(|(image, labels)| {
+            let name = Path::new(&image.file_name).file_stem().and_then(|s| s.to_str()).unwrap_or_default();
+            (name.to_string(), labels.labels.iter().map(|l| l.point).collect())
+        })
+        .collect();
+    [1.0, 2.0].map(|k| score_labels(&labelled, truth, k * config.match_radius_px)).to_vec()
 }
 
 /// Refuses an output folder that holds anything but an earlier
