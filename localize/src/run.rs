@@ -109,7 +109,7 @@ pub fn run_with(
     let Some(&start_time) = stamps.first() else {
         return Err(crate::error::LocalizeError::Recording("the recording has no LIDAR scans".into()));
     };
-    let (mut keyframes, truth_origin, mut placing) = match map {
+    let (keyframes, truth_origin, placing) = match map {
         Some(MapStart { map, start }) => {
             let kept = (map.keyframes.clone(), map.truth_origin, Some(start));
             localizer.start_from_map(map);
@@ -118,40 +118,78 @@ pub fn run_with(
         None => (Vec::new(), sequence.ground_truth().map(|t| truth_at(t, start_time)), None),
     };
     check_logs_cover(&stamps, sequence)?;
-    // The world frame is the robot's pose at the first frame; in a given
-    // map, the map's, the first frame placing the filters there.
-    let start = datasets::math::Pose3::identity();
-    let mut fused = Ekf::new(config.ekf.clone(), &start, start_time);
-    let mut dead_reckoning = Ekf::new(config.ekf.clone(), &start, start_time);
-    let mut replay = SensorReplay::new(sequence.odometry(), sequence.imu(), start_time);
-    let mut replay_reference = SensorReplay::new(sequence.odometry(), sequence.imu(), start_time);
     let bar = if show_progress { ProgressBar::new(stamps.len() as u64) } else { ProgressBar::hidden() };
     bar.set_style(
         ProgressStyle::with_template("{prefix} [{elapsed_precise}] {bar:30} {pos}/{len} frames {msg}")
             .expect("static template"),
     );
     bar.set_prefix("localize");
-    let mut result = RunResult {
-        trajectory: Trajectory::default(),
-        reference: Trajectory::default(),
-        frames: Vec::new(),
-        corner_landmarks: Vec::new(),
-        plane_landmarks: Vec::new(),
-        wall_axis: None,
-        point_map: Vec::new(),
-        keyframes: Vec::new(),
-        truth_origin,
-        placement: None,
-        corner_tracks: track_corners.map(CornerTracks::new),
+    // The world frame is the robot's pose at the first frame; in a given
+    // map, the map's, the first frame placing the filters there.
+    let start = datasets::math::Pose3::identity();
+    let mut run = RunState {
+        config,
+        calibration,
+        localizer,
+        fused: Ekf::new(config.ekf.clone(), &start, start_time),
+        dead_reckoning: Ekf::new(config.ekf.clone(), &start, start_time),
+        replay: SensorReplay::new(sequence.odometry(), sequence.imu(), start_time),
+        replay_reference: SensorReplay::new(sequence.odometry(), sequence.imu(), start_time),
+        detector_clock: DetectorClock { rate_hz: config.sync.detector_rate_hz, last: None },
+        placing,
+        keep_image_edges,
+        unreadable: Vec::new(),
+        result: RunResult {
+            trajectory: Trajectory::default(),
+            reference: Trajectory::default(),
+            frames: Vec::new(),
+            corner_landmarks: Vec::new(),
+            plane_landmarks: Vec::new(),
+            wall_axis: None,
+            point_map: Vec::new(),
+            keyframes: Vec::new(),
+            truth_origin,
+            placement: None,
+            corner_tracks: track_corners.map(CornerTracks::new),
+        },
     };
-    let mut unreadable: Vec<FrameFault> = Vec::new();
-    let mut detector_clock = DetectorClock { rate_hz: config.sync.detector_rate_hz, last: None };
-    let robot_from_camera = calibration.robot_from_camera();
-    let lidar_from_robot = calibration.robot_from_lidar.inverse();
     sequence.for_each_frame(&mut |frame: FrameInput| {
+        let status = run.frame(frame, source)?;
+        bar.set_message(status);
+        bar.inc(1);
+        Ok(())
+    })?;
+    bar.finish();
+    run.finish(keyframes)
+}
+
+/// A run between its frames: the filters and their log replays, the
+/// detector's clock, the map placement still to do, what was made so far.
+struct RunState<'a> {
+    config: &'a LocalizeConfig,
+    calibration: datasets::formats::Calibration,
+    localizer: Localizer,
+    fused: Ekf,
+    /// Odometry/IMU alone: the reference trajectory.
+    dead_reckoning: Ekf,
+    replay: SensorReplay<'a>,
+    replay_reference: SensorReplay<'a>,
+    detector_clock: DetectorClock,
+    /// In a given map: the rough start the first scan is placed near.
+    placing: Option<Option<Pose3>>,
+    keep_image_edges: bool,
+    unreadable: Vec<FrameFault>,
+    result: RunResult,
+}
+
+impl RunState<'_> {
+    /// One frame: the filters to its time, its cloud deskewed, geometry and
+    /// detector side by side, the fusion; returns the frame's status line.
+    fn frame(&mut self, frame: FrameInput, source: &mut CornerSource) -> Result<String> {
+        let (config, calibration) = (self.config, &self.calibration);
         let FrameInput { stamp, mut cloud, image, edges } = frame;
         if let Err(why) = &cloud {
-            unreadable.push(why.clone());
+            self.unreadable.push(why.clone());
         }
         // A frame's time counts from here: filter, deskewing, geometry and detector.
         let started = Instant::now();
@@ -159,8 +197,8 @@ pub fn run_with(
         // The filter moves to the scan's time, and says where the robot was
         // when the image was taken and while the sweep went round.
         let times = FrameMotion::times_for(stamp, image_stamp, cloud.as_ref().ok().filter(|_| config.sync.deskew));
-        let motion = FrameMotion::sample(&mut fused, &mut replay, stamp, &times);
-        replay_reference.advance(&mut dead_reckoning, stamp);
+        let motion = FrameMotion::sample(&mut self.fused, &mut self.replay, stamp, &times);
+        self.replay_reference.advance(&mut self.dead_reckoning, stamp);
         if config.sync.deskew
             && let Ok(c) = &mut cloud
         {
@@ -168,7 +206,7 @@ pub fn run_with(
         }
         let lidar_from_camera = match image_stamp {
             Some(t) if t != stamp && config.sync.camera_motion => {
-                lidar_from_robot * motion.relative(t) * robot_from_camera
+                calibration.robot_from_lidar.inverse() * motion.relative(t) * calibration.robot_from_camera()
             }
             _ => calibration.camera_from_lidar.inverse(),
         };
@@ -177,9 +215,10 @@ pub fn run_with(
         let image = image
             .and_then(|i| i.image)
             .and_then(|image| if camera_off { Err(FrameFault::CameraOff) } else { Ok(image) })
-            .and_then(|image| detector_clock.take(stamp).map(|()| image));
+            .and_then(|image| self.detector_clock.take(stamp).map(|()| image));
         // The cloud's geometry and the detector are independent until fusion:
         // run them side by side, so each fills the cores the other leaves idle.
+        let localizer = &self.localizer;
         let (geometry, (pixels, detect_ms)) = rayon::join(
             || localizer.frame_geometry(cloud),
             || match (&image, &mut *source) {
@@ -188,56 +227,71 @@ pub fn run_with(
             },
         );
         // In a given map, the first scan says where the run starts.
-        if let Some(start) = placing.take() {
-            let placed = match &geometry {
-                Ok(g) => localizer.place_in_map(g, start.as_ref()),
-                Err(why) => Err(format!("its cloud is unusable: {why}")),
-            };
-            let placement = placed.map_err(|why| crate::error::LocalizeError::Relocalize { stamp, why })?;
-            fused.place(&placement.pose, &placement.covariance);
-            dead_reckoning.place(&placement.pose, &placement.covariance);
-            result.placement = Some(placement);
+        if let Some(start) = self.placing.take() {
+            self.place(&geometry, start.as_ref(), stamp)?;
         }
         // The image's edges are the camera's too: left out with it.
-        let edges = if camera_off && !keep_image_edges { Vec::new() } else { edges };
+        let edges = if camera_off && !self.keep_image_edges { Vec::new() } else { edges };
         let camera = CameraCorners { pixels, lidar_from_camera, detect_ms, edges };
-        let scan_corners = match (&result.corner_tracks, &geometry) {
-            (Some(t), Ok(g)) => structural_corners(g, &calibration.robot_from_lidar, t.config.min_plane_extent_m),
+        let scan_corners = match (&self.result.corner_tracks, &geometry) {
+            (Some(t), Ok(g)) => structural_corners(g, &self.calibration.robot_from_lidar, t.config.min_plane_extent_m),
             _ => Vec::new(),
         };
-        let report = localizer.process(stamp, &mut fused, geometry, camera, started);
+        let report = self.localizer.process(stamp, &mut self.fused, geometry, camera, started);
+        let result = &mut self.result;
         if let Some(tracks) = &mut result.corner_tracks {
             tracks.observe(stamp, &report.pose, &scan_corners);
         }
         // What the recording does not measure carries on from this motion.
         if let (Some(&from_stamp), Some(from)) = (result.trajectory.stamps.last(), result.trajectory.poses.last()) {
-            replay.carry_on((from, from_stamp), (&report.pose, stamp));
+            self.replay.carry_on((from, from_stamp), (&report.pose, stamp));
         }
-        bar.set_message(report.status.label());
-        bar.inc(1);
+        let status = report.status.label();
         result.trajectory.push(stamp, report.pose);
-        result.reference.push(stamp, dead_reckoning.pose());
+        result.reference.push(stamp, self.dead_reckoning.pose());
         result.frames.push(report);
-        Ok(())
-    })?;
-    bar.finish();
-    // Clouds that cannot be read are each a frame's fallback; all of them
-    // unreadable is a broken recording, not a run.
-    if unreadable.len() == result.frames.len()
-        && let Some(why) = unreadable.first()
-    {
-        return Err(crate::error::LocalizeError::Cloud(format!(
-            "every one of the {} clouds is unreadable; the first: {why}",
-            result.frames.len()
-        )));
+        Ok(status)
     }
-    result.corner_landmarks = localizer.map.landmarks.clone();
-    result.plane_landmarks = localizer.plane_map.landmarks.clone();
-    result.wall_axis = localizer.plane_map.axis;
-    result.point_map = localizer.point_map.points().copied().collect();
-    keyframes.extend(keyframes_along(&result.trajectory.poses, &config.relocalize));
-    result.keyframes = keyframes;
-    Ok(result)
+
+    /// Places both filters where the first scan fits the given map.
+    fn place(
+        &mut self,
+        geometry: &std::result::Result<crate::scan::geometry::Geometry, FrameFault>,
+        start: Option<&Pose3>,
+        stamp: f64,
+    ) -> Result<()> {
+        let placed = match geometry {
+            Ok(g) => self.localizer.place_in_map(g, start),
+            Err(why) => Err(format!("its cloud is unusable: {why}")),
+        };
+        let placement = placed.map_err(|why| crate::error::LocalizeError::Relocalize { stamp, why })?;
+        self.fused.place(&placement.pose, &placement.covariance);
+        self.dead_reckoning.place(&placement.pose, &placement.covariance);
+        self.result.placement = Some(placement);
+        Ok(())
+    }
+
+    /// The maps the run built, and its keyframes after `keyframes` (a given
+    /// map's). Clouds that cannot be read are each a frame's fallback; all
+    /// of them unreadable is a broken recording, not a run.
+    fn finish(self, mut keyframes: Vec<Pose3>) -> Result<RunResult> {
+        let Self { mut result, localizer, unreadable, config, .. } = self;
+        if unreadable.len() == result.frames.len()
+            && let Some(why) = unreadable.first()
+        {
+            return Err(crate::error::LocalizeError::Cloud(format!(
+                "every one of the {} clouds is unreadable; the first: {why}",
+                result.frames.len()
+            )));
+        }
+        result.corner_landmarks = localizer.map.landmarks.clone();
+        result.plane_landmarks = localizer.plane_map.landmarks.clone();
+        result.wall_axis = localizer.plane_map.axis;
+        result.point_map = localizer.point_map.points().copied().collect();
+        keyframes.extend(keyframes_along(&result.trajectory.poses, &config.relocalize));
+        result.keyframes = keyframes;
+        Ok(result)
+    }
 }
 
 /// The sequence's ground truth in the run's world (the frame of its
