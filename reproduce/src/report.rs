@@ -79,6 +79,18 @@ fn error_table(s: &mut String, rows: &[(String, &[ErrorRow])]) {
 /// The report's Markdown; picture paths are relative to `out`.
 pub fn markdown(plan: &Plan, results: &Results, machine: &Machine, invocation_s: f64) -> String {
     let mut s = String::new();
+    introduction(&mut s, plan, results, machine, invocation_s);
+    let _ = writeln!(s, "\n## Table 1: training (paper's Table 1)\n");
+    let _ = write!(s, "{}", markdown_table(&results.records));
+    let _ = writeln!(s, "\n![Figure 8a: training and validation loss](compare/losses.png)\n");
+
+    localization_table(&mut s, results);
+    paper_beside_ours(&mut s, results);
+    s
+}
+
+/// The machine, the time, the data and where the networks started.
+fn introduction(s: &mut String, plan: &Plan, results: &Results, machine: &Machine, invocation_s: f64) {
     let _ = writeln!(s, "# Reproduction: 2D corners + 3D planes, Faster R-CNN vs VGG16 vs AlexNet\n");
     let stage_s = results.data.seconds
         + results.trunks.iter().map(|t| t.seconds).sum::<f64>()
@@ -145,11 +157,10 @@ pub fn markdown(plan: &Plan, results: &Results, machine: &Machine, invocation_s:
             t.corpus_ap50.map(|a| format!("{a:.3}")).unwrap_or_else(|| "unknown".into())
         );
     }
+}
 
-    let _ = writeln!(s, "\n## Table 1: training (paper's Table 1)\n");
-    let _ = write!(s, "{}", markdown_table(&results.records));
-    let _ = writeln!(s, "\n![Figure 8a: training and validation loss](compare/losses.png)\n");
-
+/// Table 2 (the paper's), with each detector's frames corrected and Figure 8b.
+fn localization_table(s: &mut String, results: &Results) {
     let _ = writeln!(s, "## Table 2: localization error in metres (paper's Table 2)\n");
     let mut rows: Vec<(String, &[ErrorRow])> =
         results.localization.iter().map(|l| (format!("fused, {}", l.backbone), l.fused.as_slice())).collect();
@@ -159,7 +170,7 @@ pub fn markdown(plan: &Plan, results: &Results, machine: &Machine, invocation_s:
     if rows.iter().all(|(_, r)| r.is_empty()) {
         let _ = writeln!(s, "The sequence has no `groundtruth.txt`: trajectories only, no errors.");
     } else {
-        error_table(&mut s, &rows);
+        error_table(s, &rows);
     }
     let _ = writeln!(s);
     for l in &results.localization {
@@ -176,7 +187,10 @@ pub fn markdown(plan: &Plan, results: &Results, machine: &Machine, invocation_s:
             Path::new("localize").join(first.backbone.name()).display()
         );
     }
+}
 
+/// The paper's published figures beside this run's.
+fn paper_beside_ours(s: &mut String, results: &Results) {
     let _ = writeln!(s, "## The paper's figures beside ours\n");
     let _ = writeln!(s, "| quantity | paper | ours |");
     let _ = writeln!(s, "|---|---|---|");
@@ -222,5 +236,4 @@ pub fn markdown(plan: &Plan, results: &Results, machine: &Machine, invocation_s:
          percentages compare training progress only. Its trajectory errors come from a real robot; ours from \
          the generated sequence, whose ground truth is exact.\n"
     );
-    s
 }
