@@ -92,6 +92,29 @@ pub fn read_ply(path: &Path, policy: NonFinite) -> Result<PointCloud> {
 
 /// Parses PLY `bytes`; `path` only names the source in errors.
 pub fn read_ply_bytes(path: &Path, bytes: &[u8], policy: NonFinite) -> Result<PointCloud> {
+    let header = parse_header(path, bytes)?;
+    let columns = VertexColumns::of(path, &header.elements)?;
+    let n = header.elements[columns.vertex].count;
+    let mut cloud = CloudBuilder::new(path, policy, n, columns.intensity.is_some());
+    match header.format {
+        PlyFormat::Ascii => read_ascii_body(path, bytes, &header, &columns, &mut cloud)?,
+        PlyFormat::BinaryLittleEndian | PlyFormat::BinaryBigEndian => {
+            read_binary_body(path, bytes, &header, &columns, &mut cloud)?
+        }
+    }
+    Ok(cloud.finish(Pose3::identity()))
+}
+
+/// A PLY header: its format, elements, where the body starts and how many
+/// lines the header took (ascii bodies count their lines on from there).
+struct PlyHeader {
+    format: PlyFormat,
+    elements: Vec<Element>,
+    body_start: usize,
+    header_lines: usize,
+}
+
+fn parse_header(path: &Path, bytes: &[u8]) -> Result<PlyHeader> {
     let mut pos = 0;
     let mut line_no = 0;
     let mut format = None;
@@ -150,144 +173,174 @@ pub fn read_ply_bytes(path: &Path, bytes: &[u8], policy: NonFinite) -> Result<Po
             Some(other) => return Err(bad(format!("unknown header keyword `{other}`"))),
         }
     }
-    let header_lines = line_no;
     let format = format.ok_or_else(|| DataError::invalid(path, "no `format` line in the header"))?;
-    let vertex_index = elements
-        .iter()
-        .position(|e| e.name == "vertex")
-        .ok_or_else(|| DataError::invalid(path, "no `vertex` element"))?;
-    let find = |names: &[&str]| {
-        elements[vertex_index]
+    Ok(PlyHeader { format, elements, body_start: pos, header_lines: line_no })
+}
+
+/// Which element is the vertex, and which of its properties are x, y, z and
+/// the intensity.
+struct VertexColumns {
+    vertex: usize,
+    x: usize,
+    y: usize,
+    z: usize,
+    intensity: Option<usize>,
+}
+
+impl VertexColumns {
+    fn of(path: &Path, elements: &[Element]) -> Result<Self> {
+        let vertex = elements
+            .iter()
+            .position(|e| e.name == "vertex")
+            .ok_or_else(|| DataError::invalid(path, "no `vertex` element"))?;
+        let find = |names: &[&str]| {
+            elements[vertex]
+                .properties
+                .iter()
+                .position(|p| matches!(p, Property::Scalar { name, .. } if names.contains(&name.as_str())))
+        };
+        let missing = |axis: &str| DataError::invalid(path, format!("vertex element has no `{axis}` property"));
+        Ok(Self {
+            vertex,
+            x: find(&["x"]).ok_or_else(|| missing("x"))?,
+            y: find(&["y"]).ok_or_else(|| missing("y"))?,
+            z: find(&["z"]).ok_or_else(|| missing("z"))?,
+            intensity: find(&["intensity", "scalar_intensity", "scalar_Intensity"]),
+        })
+    }
+}
+
+fn read_ascii_body(
+    path: &Path,
+    bytes: &[u8],
+    header: &PlyHeader,
+    columns: &VertexColumns,
+    cloud: &mut CloudBuilder<'_>,
+) -> Result<()> {
+    let (pos, header_lines, elements) = (header.body_start, header.header_lines, &header.elements);
+    let (vertex_index, ix, iy, iz, ii) = (columns.vertex, columns.x, columns.y, columns.z, columns.intensity);
+    let text = std::str::from_utf8(&bytes[pos..])
+        .map_err(|e| DataError::byte(path, (pos + e.valid_up_to()) as u64, "ascii body is not text"))?;
+    let mut lines = text.lines().enumerate().map(|(k, l)| (header_lines + 1 + k, l));
+    for (e_index, element) in elements.iter().enumerate() {
+        for item in 0..element.count {
+            let (no, line) = lines.next().ok_or_else(|| {
+                DataError::invalid(path, format!("file ends inside element `{}` (item {item})", element.name))
+            })?;
+            let values: Vec<f64> = line
+                .split_whitespace()
+                .map(|w| w.parse::<f64>().map_err(|_| DataError::line(path, no, format!("`{w}` is not a number"))))
+                .collect::<Result<_>>()?;
+            if e_index != vertex_index {
+                continue;
+            }
+            // Scalars only before any list in a vertex line; lists make positions variable.
+            let mut at = 0;
+            let mut scalar_values = Vec::with_capacity(element.properties.len());
+            for p in &element.properties {
+                match p {
+                    Property::Scalar { .. } => {
+                        scalar_values.push(*values.get(at).ok_or_else(|| {
+                            DataError::line(path, no, format!("expected more values, found {}", values.len()))
+                        })?);
+                        at += 1;
+                    }
+                    Property::List { .. } => {
+                        let len = *values.get(at).unwrap_or(&0.0) as usize;
+                        scalar_values.push(f64::NAN);
+                        at += 1 + len;
+                    }
+                }
+            }
+            if at != values.len() {
+                return Err(DataError::line(path, no, format!("expected {at} values, found {}", values.len())));
+            }
+            let v = |k: usize| scalar_values[k] as f32;
+            cloud.push(item, [v(ix), v(iy), v(iz)], ii.map_or(0.0, v))?;
+        }
+    }
+    // A count lower than the data would silently drop the rest.
+    if let Some((no, _)) = lines.find(|(_, l)| !l.trim().is_empty()) {
+        return Err(DataError::line(path, no, "data after the items the header declares"));
+    }
+    Ok(())
+}
+
+fn read_binary_body(
+    path: &Path,
+    bytes: &[u8],
+    header: &PlyHeader,
+    columns: &VertexColumns,
+    cloud: &mut CloudBuilder<'_>,
+) -> Result<()> {
+    let (mut pos, format, elements) = (header.body_start, header.format, &header.elements);
+    let (vertex_index, ix, iy, iz, ii) = (columns.vertex, columns.x, columns.y, columns.z, columns.intensity);
+    let little = format == PlyFormat::BinaryLittleEndian;
+    // Each item takes at least its scalars and list counts: a count the
+    // rest of the file cannot hold is refused before the items are
+    // walked (an element without properties would loop for nothing).
+    let mut least = 0usize;
+    for element in elements {
+        let item_bytes: usize = element
             .properties
             .iter()
-            .position(|p| matches!(p, Property::Scalar { name, .. } if names.contains(&name.as_str())))
-    };
-    let missing = |axis: &str| DataError::invalid(path, format!("vertex element has no `{axis}` property"));
-    let ix = find(&["x"]).ok_or_else(|| missing("x"))?;
-    let iy = find(&["y"]).ok_or_else(|| missing("y"))?;
-    let iz = find(&["z"]).ok_or_else(|| missing("z"))?;
-    let ii = find(&["intensity", "scalar_intensity", "scalar_Intensity"]);
-    let n = elements[vertex_index].count;
-    let mut cloud = CloudBuilder::new(path, policy, n, ii.is_some());
-
-    match format {
-        PlyFormat::Ascii => {
-            let text = std::str::from_utf8(&bytes[pos..])
-                .map_err(|e| DataError::byte(path, (pos + e.valid_up_to()) as u64, "ascii body is not text"))?;
-            let mut lines = text.lines().enumerate().map(|(k, l)| (header_lines + 1 + k, l));
-            for (e_index, element) in elements.iter().enumerate() {
-                for item in 0..element.count {
-                    let (no, line) = lines.next().ok_or_else(|| {
-                        DataError::invalid(path, format!("file ends inside element `{}` (item {item})", element.name))
-                    })?;
-                    let values: Vec<f64> = line
-                        .split_whitespace()
-                        .map(|w| {
-                            w.parse::<f64>().map_err(|_| DataError::line(path, no, format!("`{w}` is not a number")))
-                        })
-                        .collect::<Result<_>>()?;
-                    if e_index != vertex_index {
-                        continue;
-                    }
-                    // Scalars only before any list in a vertex line; lists make positions variable.
-                    let mut at = 0;
-                    let mut scalar_values = Vec::with_capacity(element.properties.len());
-                    for p in &element.properties {
-                        match p {
-                            Property::Scalar { .. } => {
-                                scalar_values.push(*values.get(at).ok_or_else(|| {
-                                    DataError::line(path, no, format!("expected more values, found {}", values.len()))
-                                })?);
-                                at += 1;
-                            }
-                            Property::List { .. } => {
-                                let len = *values.get(at).unwrap_or(&0.0) as usize;
-                                scalar_values.push(f64::NAN);
-                                at += 1 + len;
-                            }
-                        }
-                    }
-                    if at != values.len() {
-                        return Err(DataError::line(path, no, format!("expected {at} values, found {}", values.len())));
-                    }
-                    let v = |k: usize| scalar_values[k] as f32;
-                    cloud.push(item, [v(ix), v(iy), v(iz)], ii.map_or(0.0, v))?;
-                }
-            }
-            // A count lower than the data would silently drop the rest.
-            if let Some((no, _)) = lines.find(|(_, l)| !l.trim().is_empty()) {
-                return Err(DataError::line(path, no, "data after the items the header declares"));
-            }
+            .map(|p| match *p {
+                Property::Scalar { kind, .. } => kind.size(),
+                Property::List { count, .. } => count.size(),
+            })
+            .sum();
+        if element.count > 0 && item_bytes == 0 {
+            return Err(DataError::invalid(
+                path,
+                format!("element `{}` has {} items but no properties", element.name, element.count),
+            ));
         }
-        PlyFormat::BinaryLittleEndian | PlyFormat::BinaryBigEndian => {
-            let little = format == PlyFormat::BinaryLittleEndian;
-            // Each item takes at least its scalars and list counts: a count the
-            // rest of the file cannot hold is refused before the items are
-            // walked (an element without properties would loop for nothing).
-            let mut least = 0usize;
-            for element in &elements {
-                let item_bytes: usize = element
-                    .properties
-                    .iter()
-                    .map(|p| match *p {
-                        Property::Scalar { kind, .. } => kind.size(),
-                        Property::List { count, .. } => count.size(),
-                    })
-                    .sum();
-                if element.count > 0 && item_bytes == 0 {
-                    return Err(DataError::invalid(
-                        path,
-                        format!("element `{}` has {} items but no properties", element.name, element.count),
-                    ));
-                }
-                least = least.saturating_add(element.count.saturating_mul(item_bytes));
-            }
-            if least > bytes.len() - pos {
-                return Err(DataError::byte(
-                    path,
-                    pos as u64,
-                    format!(
-                        "file ends inside the binary body: the header declares items of at least {least} bytes, \
-                         the file has {} after it",
-                        bytes.len() - pos
-                    ),
-                ));
-            }
-            let mut values = Vec::new();
-            for (e_index, element) in elements.iter().enumerate() {
-                for item in 0..element.count {
-                    values.clear();
-                    for p in &element.properties {
-                        match *p {
-                            Property::Scalar { kind, .. } => {
-                                values.push(kind.decode(take(path, bytes, &mut pos, kind.size())?, little));
-                            }
-                            Property::List { count, item: item_kind } => {
-                                let len = count.decode(take(path, bytes, &mut pos, count.size())?, little);
-                                if !(0.0..=1e9).contains(&len) {
-                                    return Err(DataError::byte(path, pos as u64, format!("bad list length {len}")));
-                                }
-                                take(path, bytes, &mut pos, len as usize * item_kind.size())?;
-                                values.push(f64::NAN);
-                            }
+        least = least.saturating_add(element.count.saturating_mul(item_bytes));
+    }
+    if least > bytes.len() - pos {
+        return Err(DataError::byte(
+            path,
+            pos as u64,
+            format!(
+                "file ends inside the binary body: the header declares items of at least {least} bytes, \
+                 the file has {} after it",
+                bytes.len() - pos
+            ),
+        ));
+    }
+    let mut values = Vec::new();
+    for (e_index, element) in elements.iter().enumerate() {
+        for item in 0..element.count {
+            values.clear();
+            for p in &element.properties {
+                match *p {
+                    Property::Scalar { kind, .. } => {
+                        values.push(kind.decode(take(path, bytes, &mut pos, kind.size())?, little));
+                    }
+                    Property::List { count, item: item_kind } => {
+                        let len = count.decode(take(path, bytes, &mut pos, count.size())?, little);
+                        if !(0.0..=1e9).contains(&len) {
+                            return Err(DataError::byte(path, pos as u64, format!("bad list length {len}")));
                         }
-                    }
-                    if e_index == vertex_index {
-                        let v = |k: usize| values[k] as f32;
-                        cloud.push(item, [v(ix), v(iy), v(iz)], ii.map_or(0.0, v))?;
+                        take(path, bytes, &mut pos, len as usize * item_kind.size())?;
+                        values.push(f64::NAN);
                     }
                 }
             }
-            if pos < bytes.len() {
-                return Err(DataError::byte(
-                    path,
-                    pos as u64,
-                    format!("{} bytes after the items the header declares", bytes.len() - pos),
-                ));
+            if e_index == vertex_index {
+                let v = |k: usize| values[k] as f32;
+                cloud.push(item, [v(ix), v(iy), v(iz)], ii.map_or(0.0, v))?;
             }
         }
     }
-    Ok(cloud.finish(Pose3::identity()))
+    if pos < bytes.len() {
+        return Err(DataError::byte(
+            path,
+            pos as u64,
+            format!("{} bytes after the items the header declares", bytes.len() - pos),
+        ));
+    }
+    Ok(())
 }
 
 /// Takes `len` bytes at `pos`, or fails naming where the file ended.
