@@ -126,20 +126,7 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header> {
             "WIDTH" => width = numbers(&rest)?.first().copied(),
             "HEIGHT" => height = numbers(&rest)?.first().copied(),
             "POINTS" => points = numbers(&rest)?.first().copied(),
-            "VIEWPOINT" => {
-                let v: Vec<f64> = rest
-                    .iter()
-                    .map(|w| w.parse::<f64>().map_err(|_| bad(&format!("`{w}` is not a number"))))
-                    .collect::<Result<_>>()?;
-                if v.len() != 7 || v.iter().any(|x| !x.is_finite()) {
-                    return Err(bad("expected 7 finite numbers: tx ty tz qw qx qy qz"));
-                }
-                let q = Quaternion::new(v[3], v[4], v[5], v[6]);
-                if q.norm() < 1e-9 {
-                    return Err(bad("zero quaternion"));
-                }
-                viewpoint = Pose3::from_parts(Translation3::new(v[0], v[1], v[2]), UnitQuaternion::from_quaternion(q));
-            }
+            "VIEWPOINT" => viewpoint = parse_viewpoint(&rest, bad)?,
             "DATA" => {
                 let data = match rest.first().copied() {
                     Some("ascii") => PcdData::Ascii,
@@ -147,78 +134,8 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header> {
                     Some("binary_compressed") => PcdData::BinaryCompressed,
                     other => return Err(bad(&format!("unknown DATA kind {other:?}"))),
                 };
-                let n = names.len();
-                if n == 0 {
-                    return Err(DataError::line(path, line_no, "no FIELDS line before DATA"));
-                }
-                let counts = counts.clone().unwrap_or_else(|| vec![1; n]);
-                if sizes.len() != n || kinds.len() != n || counts.len() != n {
-                    return Err(DataError::line(
-                        path,
-                        line_no,
-                        format!(
-                            "FIELDS has {n} entries but SIZE has {}, TYPE {} and COUNT {}",
-                            sizes.len(),
-                            kinds.len(),
-                            counts.len()
-                        ),
-                    ));
-                }
-                let mut fields = Vec::with_capacity(n);
-                let mut offset = 0;
-                for i in 0..n {
-                    let valid = match kinds[i] {
-                        b'F' => matches!(sizes[i], 4 | 8),
-                        _ => matches!(sizes[i], 1 | 2 | 4 | 8),
-                    };
-                    if !valid {
-                        return Err(DataError::line(
-                            path,
-                            line_no,
-                            format!(
-                                "field `{}` has unsupported type {} of size {}",
-                                names[i], kinds[i] as char, sizes[i]
-                            ),
-                        ));
-                    }
-                    // COUNT 0 would give a field no bytes to read; a huge one no file can hold.
-                    if counts[i] == 0 || counts[i] > MAX_FIELD_COUNT {
-                        return Err(DataError::line(
-                            path,
-                            line_no,
-                            format!("field `{}` has COUNT {} (1 to {MAX_FIELD_COUNT})", names[i], counts[i]),
-                        ));
-                    }
-                    fields.push(Field {
-                        name: names[i].clone(),
-                        size: sizes[i],
-                        kind: kinds[i],
-                        count: counts[i],
-                        offset,
-                    });
-                    offset += sizes[i] * counts[i];
-                }
-                let from_size =
-                    match (width, height) {
-                        (Some(w), Some(h)) => Some(w.checked_mul(h).ok_or_else(|| {
-                            DataError::line(path, line_no, format!("WIDTH {w} x HEIGHT {h} overflows"))
-                        })?),
-                        _ => None,
-                    };
-                let points = match (points, from_size) {
-                    (Some(p), Some(s)) if p != s => {
-                        return Err(DataError::line(
-                            path,
-                            line_no,
-                            format!("POINTS {p} differs from WIDTH x HEIGHT = {s}"),
-                        ));
-                    }
-                    (Some(p), _) => p,
-                    (None, Some(s)) => s,
-                    (None, None) => {
-                        return Err(DataError::line(path, line_no, "neither POINTS nor WIDTH/HEIGHT given"));
-                    }
-                };
+                let fields = fields_of(path, line_no, &names, &sizes, &kinds, counts.clone())?;
+                let points = point_count(path, line_no, width, height, points)?;
                 return Ok(Header { fields, points, viewpoint, data, data_start: pos, data_line: line_no });
             }
             _ => {
@@ -226,6 +143,104 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header> {
             }
         }
     }
+}
+
+/// The fields of a header at its DATA line: FIELDS, SIZE, TYPE and COUNT
+/// agree in length, each type has a size it can have, each count is sane.
+fn fields_of(
+    path: &Path,
+    line_no: usize,
+    names: &[String],
+    sizes: &[usize],
+    kinds: &[u8],
+    counts: Option<Vec<usize>>,
+) -> Result<Vec<Field>> {
+    let n = names.len();
+    if n == 0 {
+        return Err(DataError::line(path, line_no, "no FIELDS line before DATA"));
+    }
+    let counts = counts.unwrap_or_else(|| vec![1; n]);
+    if sizes.len() != n || kinds.len() != n || counts.len() != n {
+        return Err(DataError::line(
+            path,
+            line_no,
+            format!(
+                "FIELDS has {n} entries but SIZE has {}, TYPE {} and COUNT {}",
+                sizes.len(),
+                kinds.len(),
+                counts.len()
+            ),
+        ));
+    }
+    let mut fields = Vec::with_capacity(n);
+    let mut offset = 0;
+    for i in 0..n {
+        let valid = match kinds[i] {
+            b'F' => matches!(sizes[i], 4 | 8),
+            _ => matches!(sizes[i], 1 | 2 | 4 | 8),
+        };
+        if !valid {
+            return Err(DataError::line(
+                path,
+                line_no,
+                format!("field `{}` has unsupported type {} of size {}", names[i], kinds[i] as char, sizes[i]),
+            ));
+        }
+        // COUNT 0 would give a field no bytes to read; a huge one no file can hold.
+        if counts[i] == 0 || counts[i] > MAX_FIELD_COUNT {
+            return Err(DataError::line(
+                path,
+                line_no,
+                format!("field `{}` has COUNT {} (1 to {MAX_FIELD_COUNT})", names[i], counts[i]),
+            ));
+        }
+        fields.push(Field { name: names[i].clone(), size: sizes[i], kind: kinds[i], count: counts[i], offset });
+        offset += sizes[i] * counts[i];
+    }
+    Ok(fields)
+}
+
+/// POINTS, or WIDTH x HEIGHT, which must agree when both are given.
+fn point_count(
+    path: &Path,
+    line_no: usize,
+    width: Option<usize>,
+    height: Option<usize>,
+    points: Option<usize>,
+) -> Result<usize> {
+    let from_size = match (width, height) {
+        (Some(w), Some(h)) => Some(
+            w.checked_mul(h)
+                .ok_or_else(|| DataError::line(path, line_no, format!("WIDTH {w} x HEIGHT {h} overflows")))?,
+        ),
+        _ => None,
+    };
+    Ok(match (points, from_size) {
+        (Some(p), Some(s)) if p != s => {
+            return Err(DataError::line(path, line_no, format!("POINTS {p} differs from WIDTH x HEIGHT = {s}")));
+        }
+        (Some(p), _) => p,
+        (None, Some(s)) => s,
+        (None, None) => {
+            return Err(DataError::line(path, line_no, "neither POINTS nor WIDTH/HEIGHT given"));
+        }
+    })
+}
+
+/// VIEWPOINT's `tx ty tz qw qx qy qz`.
+fn parse_viewpoint(rest: &[&str], bad: impl Fn(&str) -> DataError) -> Result<Pose3> {
+    let v: Vec<f64> = rest
+        .iter()
+        .map(|w| w.parse::<f64>().map_err(|_| bad(&format!("`{w}` is not a number"))))
+        .collect::<Result<_>>()?;
+    if v.len() != 7 || v.iter().any(|x| !x.is_finite()) {
+        return Err(bad("expected 7 finite numbers: tx ty tz qw qx qy qz"));
+    }
+    let q = Quaternion::new(v[3], v[4], v[5], v[6]);
+    if q.norm() < 1e-9 {
+        return Err(bad("zero quaternion"));
+    }
+    Ok(Pose3::from_parts(Translation3::new(v[0], v[1], v[2]), UnitQuaternion::from_quaternion(q)))
 }
 
 /// Reads a PCD file.
