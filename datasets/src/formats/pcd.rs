@@ -253,140 +253,178 @@ pub fn read_pcd(path: &Path, policy: NonFinite) -> Result<PointCloud> {
 pub fn read_pcd_bytes(path: &Path, bytes: &[u8], policy: NonFinite) -> Result<PointCloud> {
     let header = parse_header(path, bytes)?;
     let missing = |axis: &str| DataError::invalid(path, format!("no `{axis}` field in FIELDS"));
-    let ix = header.field(&["x"]).ok_or_else(|| missing("x"))?;
-    let iy = header.field(&["y"]).ok_or_else(|| missing("y"))?;
-    let iz = header.field(&["z"]).ok_or_else(|| missing("z"))?;
-    let ii = header.field(&["intensity", "i"]);
     // Per-point time: Velodyne-style `time` in seconds, or Ouster-style
     // unsigned `t` in nanoseconds.
-    let it = header.field(&["time", "t"]);
-    let time_scale = it.map_or(1.0, |k| if header.fields[k].kind == b'F' { 1.0 } else { 1e-9 });
-    let n = header.points;
-    let mut cloud = CloudBuilder::new(path, policy, n, ii.is_some());
-    if it.is_some() {
+    let time = header.field(&["time", "t"]);
+    let columns = Columns {
+        x: header.field(&["x"]).ok_or_else(|| missing("x"))?,
+        y: header.field(&["y"]).ok_or_else(|| missing("y"))?,
+        z: header.field(&["z"]).ok_or_else(|| missing("z"))?,
+        intensity: header.field(&["intensity", "i"]),
+        time,
+        time_scale: time.map_or(1.0, |k| if header.fields[k].kind == b'F' { 1.0 } else { 1e-9 }),
+    };
+    let mut cloud = CloudBuilder::new(path, policy, header.points, columns.intensity.is_some());
+    if columns.time.is_some() {
         cloud = cloud.with_times();
     }
-    let data = &bytes[header.data_start..];
-    let record = header.record_bytes();
+    let body = Body { path, bytes, header: &header, columns: &columns };
     match header.data {
-        PcdData::Ascii => {
-            let text = std::str::from_utf8(data).map_err(|e| {
-                DataError::byte(path, (header.data_start + e.valid_up_to()) as u64, "ascii data is not text")
-            })?;
-            // Token index of each field's first element within a line.
-            let mut token_of = Vec::with_capacity(header.fields.len());
-            let mut tokens = 0;
-            for f in &header.fields {
-                token_of.push(tokens);
-                tokens += f.count;
-            }
-            let mut index = 0;
-            for (k, line) in text.lines().enumerate() {
-                let line_no = header.data_line + 1 + k;
-                let words: Vec<&str> = line.split_whitespace().collect();
-                if words.is_empty() {
-                    continue;
-                }
-                if index == n {
-                    return Err(DataError::line(
-                        path,
-                        line_no,
-                        format!("more than the {n} points the header declares"),
-                    ));
-                }
-                if words.len() != tokens {
-                    return Err(DataError::line(
-                        path,
-                        line_no,
-                        format!("expected {tokens} values, found {}", words.len()),
-                    ));
-                }
-                let value = |field: usize| -> Result<f32> {
-                    let w = words[token_of[field]];
-                    parse_ascii_number(w)
-                        .ok_or_else(|| DataError::line(path, line_no, format!("`{w}` is not a number")))
-                };
-                let intensity = match ii {
-                    Some(i) => value(i)?,
-                    None => 0.0,
-                };
-                let time = match it {
-                    Some(k) => (value(k)? as f64 * time_scale) as f32,
-                    None => 0.0,
-                };
-                cloud.push_timed(index, [value(ix)?, value(iy)?, value(iz)?], intensity, time)?;
-                index += 1;
-            }
-            if index != n {
-                return Err(DataError::invalid(path, format!("header declares {n} points but the data has {index}")));
-            }
-        }
-        PcdData::Binary => {
-            // A declared count is not trusted: no product may wrap around.
-            let need = n.saturating_mul(record);
-            // PCL pads binary files with zeros to a page; anything else past
-            // the declared points is data the header does not count.
-            if data.len() > need && data[need..].iter().any(|&b| b != 0) {
-                return Err(DataError::byte(
-                    path,
-                    (header.data_start + need) as u64,
-                    format!("the data holds {} bytes after the {n} points the header declares", data.len() - need),
-                ));
-            }
-            if data.len() < need {
-                return Err(DataError::byte(
-                    path,
-                    bytes.len() as u64,
-                    format!(
-                        "binary data ends early: {n} points of {record} bytes need {need} bytes, found {}",
-                        data.len()
-                    ),
-                ));
-            }
-            let f = &header.fields;
-            for i in 0..n {
-                let rec = &data[i * record..(i + 1) * record];
-                let get = |k: usize| f[k].decode(&rec[f[k].offset..]) as f32;
-                let time = it.map_or(0.0, |k| (f[k].decode(&rec[f[k].offset..]) * time_scale) as f32);
-                cloud.push_timed(i, [get(ix), get(iy), get(iz)], ii.map_or(0.0, get), time)?;
-            }
-        }
-        PcdData::BinaryCompressed => {
-            let at = header.data_start as u64;
-            if data.len() < 8 {
-                return Err(DataError::byte(path, at, "missing the compressed/uncompressed size words"));
-            }
-            let packed = u32::from_le_bytes(data[0..4].try_into().expect("4 bytes")) as usize;
-            let unpacked = u32::from_le_bytes(data[4..8].try_into().expect("4 bytes")) as usize;
-            if data.len() < 8 + packed {
-                return Err(DataError::byte(
-                    path,
-                    bytes.len() as u64,
-                    format!("compressed block of {packed} bytes is truncated ({} present)", data.len() - 8),
-                ));
-            }
-            if unpacked != n.saturating_mul(record) {
-                return Err(DataError::byte(
-                    path,
-                    at + 4,
-                    format!("uncompressed size {unpacked} does not match {n} points of {record} bytes"),
-                ));
-            }
-            let raw = lzf::decompress(&data[8..8 + packed], unpacked)
-                .map_err(|e| DataError::byte(path, at + 8 + e.offset as u64, format!("LZF: {}", e.message)))?;
-            // Fields are stored one after another: all x, then all y, ...
-            let f = &header.fields;
-            let get = |k: usize, i: usize| {
-                let start = n * f[k].offset + i * f[k].bytes();
-                f[k].decode(&raw[start..]) as f32
-            };
-            for i in 0..n {
-                let time = it.map_or(0.0, |k| (get(k, i) as f64 * time_scale) as f32);
-                cloud.push_timed(i, [get(ix, i), get(iy, i), get(iz, i)], ii.map_or(0.0, |k| get(k, i)), time)?;
-            }
-        }
+        PcdData::Ascii => body.ascii(&mut cloud)?,
+        PcdData::Binary => body.binary(&mut cloud)?,
+        PcdData::BinaryCompressed => body.compressed(&mut cloud)?,
     }
     Ok(cloud.finish(header.viewpoint))
+}
+
+/// The fields a cloud takes its points from.
+struct Columns {
+    x: usize,
+    y: usize,
+    z: usize,
+    intensity: Option<usize>,
+    time: Option<usize>,
+    /// Seconds per unit of the time field.
+    time_scale: f64,
+}
+
+/// A PCD file's data after its header, read into a cloud by its DATA kind.
+struct Body<'a> {
+    path: &'a Path,
+    bytes: &'a [u8],
+    header: &'a Header,
+    columns: &'a Columns,
+}
+
+impl Body<'_> {
+    fn ascii(&self, cloud: &mut CloudBuilder<'_>) -> Result<()> {
+        let (path, header, data, n) = self.parts();
+        let (ix, iy, iz, ii, it, time_scale) = self.columns.unpack();
+        let text = std::str::from_utf8(data).map_err(|e| {
+            DataError::byte(path, (header.data_start + e.valid_up_to()) as u64, "ascii data is not text")
+        })?;
+        // Token index of each field's first element within a line.
+        let mut token_of = Vec::with_capacity(header.fields.len());
+        let mut tokens = 0;
+        for f in &header.fields {
+            token_of.push(tokens);
+            tokens += f.count;
+        }
+        let mut index = 0;
+        for (k, line) in text.lines().enumerate() {
+            let line_no = header.data_line + 1 + k;
+            let words: Vec<&str> = line.split_whitespace().collect();
+            if words.is_empty() {
+                continue;
+            }
+            if index == n {
+                return Err(DataError::line(path, line_no, format!("more than the {n} points the header declares")));
+            }
+            if words.len() != tokens {
+                return Err(DataError::line(path, line_no, format!("expected {tokens} values, found {}", words.len())));
+            }
+            let value = |field: usize| -> Result<f32> {
+                let w = words[token_of[field]];
+                parse_ascii_number(w).ok_or_else(|| DataError::line(path, line_no, format!("`{w}` is not a number")))
+            };
+            let intensity = match ii {
+                Some(i) => value(i)?,
+                None => 0.0,
+            };
+            let time = match it {
+                Some(k) => (value(k)? as f64 * time_scale) as f32,
+                None => 0.0,
+            };
+            cloud.push_timed(index, [value(ix)?, value(iy)?, value(iz)?], intensity, time)?;
+            index += 1;
+        }
+        if index != n {
+            return Err(DataError::invalid(path, format!("header declares {n} points but the data has {index}")));
+        }
+        Ok(())
+    }
+
+    fn binary(&self, cloud: &mut CloudBuilder<'_>) -> Result<()> {
+        let (path, header, data, n) = self.parts();
+        let (ix, iy, iz, ii, it, time_scale) = self.columns.unpack();
+        let (bytes, record) = (self.bytes, header.record_bytes());
+        // A declared count is not trusted: no product may wrap around.
+        let need = n.saturating_mul(record);
+        // PCL pads binary files with zeros to a page; anything else past
+        // the declared points is data the header does not count.
+        if data.len() > need && data[need..].iter().any(|&b| b != 0) {
+            return Err(DataError::byte(
+                path,
+                (header.data_start + need) as u64,
+                format!("the data holds {} bytes after the {n} points the header declares", data.len() - need),
+            ));
+        }
+        if data.len() < need {
+            return Err(DataError::byte(
+                path,
+                bytes.len() as u64,
+                format!("binary data ends early: {n} points of {record} bytes need {need} bytes, found {}", data.len()),
+            ));
+        }
+        let f = &header.fields;
+        for i in 0..n {
+            let rec = &data[i * record..(i + 1) * record];
+            let get = |k: usize| f[k].decode(&rec[f[k].offset..]) as f32;
+            let time = it.map_or(0.0, |k| (f[k].decode(&rec[f[k].offset..]) * time_scale) as f32);
+            cloud.push_timed(i, [get(ix), get(iy), get(iz)], ii.map_or(0.0, get), time)?;
+        }
+        Ok(())
+    }
+
+    fn compressed(&self, cloud: &mut CloudBuilder<'_>) -> Result<()> {
+        let (path, header, data, n) = self.parts();
+        let (ix, iy, iz, ii, it, time_scale) = self.columns.unpack();
+        let (bytes, record) = (self.bytes, header.record_bytes());
+        let at = header.data_start as u64;
+        if data.len() < 8 {
+            return Err(DataError::byte(path, at, "missing the compressed/uncompressed size words"));
+        }
+        let packed = u32::from_le_bytes(data[0..4].try_into().expect("4 bytes")) as usize;
+        let unpacked = u32::from_le_bytes(data[4..8].try_into().expect("4 bytes")) as usize;
+        if data.len() < 8 + packed {
+            return Err(DataError::byte(
+                path,
+                bytes.len() as u64,
+                format!("compressed block of {packed} bytes is truncated ({} present)", data.len() - 8),
+            ));
+        }
+        if unpacked != n.saturating_mul(record) {
+            return Err(DataError::byte(
+                path,
+                at + 4,
+                format!("uncompressed size {unpacked} does not match {n} points of {record} bytes"),
+            ));
+        }
+        let raw = lzf::decompress(&data[8..8 + packed], unpacked)
+            .map_err(|e| DataError::byte(path, at + 8 + e.offset as u64, format!("LZF: {}", e.message)))?;
+        // Fields are stored one after another: all x, then all y, ...
+        let f = &header.fields;
+        let get = |k: usize, i: usize| {
+            let start = n * f[k].offset + i * f[k].bytes();
+            f[k].decode(&raw[start..]) as f32
+        };
+        for i in 0..n {
+            let time = it.map_or(0.0, |k| (get(k, i) as f64 * time_scale) as f32);
+            cloud.push_timed(i, [get(ix, i), get(iy, i), get(iz, i)], ii.map_or(0.0, |k| get(k, i)), time)?;
+        }
+        Ok(())
+    }
+
+    /// The file, its header, the data after the header and the point count.
+    fn parts(&self) -> (&Path, &Header, &[u8], usize) {
+        (self.path, self.header, &self.bytes[self.header.data_start..], self.header.points)
+    }
+}
+
+impl Columns {
+    fn unpack(&self) -> (usize, usize, usize, Option<usize>, Option<usize>, f64) {
+        (self.x, self.y, self.z, self.intensity, self.time, self.time_scale)
+    }
 }
 
 fn parse_ascii_number(w: &str) -> Option<f32> {
