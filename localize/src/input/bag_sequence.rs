@@ -111,7 +111,6 @@ fn pick(
 /// The roles of a recording's topics, and a line for each choice.
 pub fn find_roles(recording: &Recording, options: &BagOptions) -> Result<(Roles, Vec<String>)> {
     use MessageKind::*;
-    let mut notes = Vec::new();
     let non_empty = |kinds: &[MessageKind]| -> Vec<usize> {
         kinds_of(recording, kinds).into_iter().filter(|&k| recording.topics[k].count > 0).collect()
     };
@@ -145,20 +144,8 @@ pub fn find_roles(recording: &Recording, options: &BagOptions) -> Result<(Roles,
         non_empty(&[Image, CompressedImage]).into_iter().filter(|k| !is_depth(k) && *k != lidar).collect();
     let image =
         pick(recording, "camera", "--image-topic", options.image_topic.as_deref(), &[Image, CompressedImage], colour)?;
-    // The camera_info of a topic's namespace when there are several.
     let infos = non_empty(&[CameraInfo]);
-    let same_namespace = |topic: Option<usize>| -> Vec<usize> {
-        match topic {
-            Some(i) if infos.len() > 1 => {
-                let ns = |name: &str| name.rsplit_once('/').map_or(String::new(), |(a, _)| a.to_string());
-                let image_ns = ns(&recording.topics[i].name);
-                let matching: Vec<usize> =
-                    infos.iter().copied().filter(|&k| image_ns.starts_with(&ns(&recording.topics[k].name))).collect();
-                if matching.is_empty() { infos.clone() } else { matching }
-            }
-            _ => infos.clone(),
-        }
-    };
+    let same_namespace = |topic: Option<usize>| infos_near(recording, &infos, topic);
     let camera_info = pick(
         recording,
         "camera_info",
@@ -196,6 +183,28 @@ pub fn find_roles(recording: &Recording, options: &BagOptions) -> Result<(Roles,
     )?;
     let by_name = |name: &str| recording.topic(name).filter(|&k| recording.topics[k].kind() == Some(TfMessage));
     let (tf_static, tf) = (by_name("/tf_static").or(by_name("tf_static")), by_name("/tf").or(by_name("tf")));
+    let roles = Roles { lidar, range, depth_info, image, camera_info, imu, odometry, ground_truth, tf_static, tf };
+    let notes = role_notes(recording, &roles);
+    Ok((roles, notes))
+}
+
+/// The camera_info topics of `topic`'s namespace, when there are several
+/// (all of them when none shares it).
+fn infos_near(recording: &Recording, infos: &[usize], topic: Option<usize>) -> Vec<usize> {
+    match topic {
+        Some(i) if infos.len() > 1 => {
+            let ns = |name: &str| name.rsplit_once('/').map_or(String::new(), |(a, _)| a.to_string());
+            let image_ns = ns(&recording.topics[i].name);
+            let matching: Vec<usize> =
+                infos.iter().copied().filter(|&k| image_ns.starts_with(&ns(&recording.topics[k].name))).collect();
+            if matching.is_empty() { infos.to_vec() } else { matching }
+        }
+        _ => infos.to_vec(),
+    }
+}
+
+/// One line per role: the topic it takes, its type and message count.
+fn role_notes(recording: &Recording, roles: &Roles) -> Vec<String> {
     let describe = |role: &str, k: Option<usize>| match k {
         Some(k) => {
             let t = &recording.topics[k];
@@ -203,17 +212,22 @@ pub fn find_roles(recording: &Recording, options: &BagOptions) -> Result<(Roles,
         }
         None => format!("{role:<12} none"),
     };
-    notes.push(describe(if range == RangeSensor::Lidar { "lidar" } else { "depth camera" }, Some(lidar)));
-    if depth_info.is_some() {
-        notes.push(describe("depth info", depth_info));
+    let mut notes =
+        vec![describe(if roles.range == RangeSensor::Lidar { "lidar" } else { "depth camera" }, Some(roles.lidar))];
+    if roles.depth_info.is_some() {
+        notes.push(describe("depth info", roles.depth_info));
     }
-    notes.push(describe("camera", image));
-    notes.push(describe("camera_info", camera_info));
-    notes.push(describe("imu", imu));
-    notes.push(describe("odometry", odometry));
-    notes.push(describe("ground truth", ground_truth));
-    notes.push(describe("tf_static", tf_static));
-    Ok((Roles { lidar, range, depth_info, image, camera_info, imu, odometry, ground_truth, tf_static, tf }, notes))
+    for (role, topic) in [
+        ("camera", roles.image),
+        ("camera_info", roles.camera_info),
+        ("imu", roles.imu),
+        ("odometry", roles.odometry),
+        ("ground truth", roles.ground_truth),
+        ("tf_static", roles.tf_static),
+    ] {
+        notes.push(describe(role, topic));
+    }
+    notes
 }
 
 /// A scan or an image: its header stamp and its message index on its topic.
