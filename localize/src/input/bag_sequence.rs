@@ -298,24 +298,7 @@ impl BagSequence {
         let recording = Recording::open(path)?;
         let (roles, mut notes) = find_roles(&recording, options)?;
         let pass = Self::first_pass(&recording, &roles)?;
-        if pass.scans.is_empty() {
-            return Err(bag_error(&recording, format!("topic {} has no messages", recording.topics[roles.lidar].name)));
-        }
-        // Scans that mostly repeat a stamp (all 0: a driver that never set them) leave a trajectory of
-        // a few poses whose errors mean nothing.
-        if pass.dropped_scans >= pass.scans.len() {
-            return Err(bag_error(
-                &recording,
-                format!(
-                    "{} of the {} messages of {} repeat the stamp before them (the first stamp: {:.6} s): \
-                     the scans' header stamps are not set",
-                    pass.dropped_scans,
-                    pass.dropped_scans + pass.scans.len(),
-                    recording.topics[roles.lidar].name,
-                    pass.scans[0].stamp
-                ),
-            ));
-        }
+        Self::check_scans(&recording, &roles, &pass)?;
         if pass.dropped_duplicates > 0 {
             notes
                 .push(format!("skipped {} messages that repeat their topic's previous stamp", pass.dropped_duplicates));
@@ -323,53 +306,8 @@ impl BagSequence {
         notes.extend(pass.tf.conflicts().iter().map(|c| format!("tf_static    {c} (--calib sets one)")));
         let base = options.base_frame.clone().unwrap_or_else(|| "base_link".to_string());
         let (calibration, undistort) = Self::calibration(&recording, &roles, &pass, &base, options, &mut notes)?;
-        let depth_camera = match (roles.range, &pass.depth_info) {
-            (RangeSensor::Lidar, _) => None,
-            (RangeSensor::DepthCamera, None) => {
-                return Err(bag_error(&recording, "the depth camera's camera_info topic has no messages"));
-            }
-            (RangeSensor::DepthCamera, Some(info)) => {
-                // Points through a pinhole that the images do not follow would be bent.
-                if !info.is_undistorted() {
-                    return Err(bag_error(
-                        &recording,
-                        format!("the depth camera_info has distortion {:?}: depth images must be rectified", info.d),
-                    ));
-                }
-                let camera = info.raw_camera();
-                camera.validate().map_err(|why| bag_error(&recording, format!("depth camera_info: {why}")))?;
-                Some(camera)
-            }
-        };
-        let robot_from_imu = match &pass.imu_frame {
-            Some(frame) if !frame.is_empty() && (options.calib.is_none() || !pass.tf.is_empty()) => {
-                pass.tf.lookup(&base, frame, false).or_else(|| pass.tf.lookup(&base, frame, true)).ok_or_else(|| {
-                    bag_error(
-                        &recording,
-                        format!("no transform from the IMU frame `{frame}` to `{base}` in /tf_static or /tf"),
-                    )
-                })?
-            }
-            _ => Pose3::identity(),
-        };
-        let imu = pass
-            .imu
-            .iter()
-            .map(|m| ImuSample {
-                timestamp: m.header.stamp_s(),
-                accel: (robot_from_imu.rotation * m.linear_acceleration).into(),
-                gyro: (robot_from_imu.rotation * m.angular_velocity).into(),
-            })
-            .collect();
-        let odometry = pass
-            .odometry
-            .iter()
-            .map(|m| {
-                let (_, _, yaw) = m.pose.rotation.euler_angles();
-                let t = m.pose.translation.vector;
-                OdometrySample { timestamp: m.header.stamp_s(), x: t.x, y: t.y, yaw, v: m.linear.x, omega: m.angular.z }
-            })
-            .collect();
+        let depth_camera = Self::depth_camera(&recording, &roles, &pass)?;
+        let (imu, odometry) = Self::motion_logs(&recording, &pass, &base, options)?;
         let scan_times: Vec<f64> = pass.scans.iter().map(|s| s.stamp).collect();
         let mut images = pass.images.clone();
         images.sort_by(|a, b| a.stamp.total_cmp(&b.stamp));
@@ -400,6 +338,90 @@ impl BagSequence {
             depth: options.depth.clone(),
             tolerance_s: sync.image_tolerance_s,
         })
+    }
+
+    /// Scans there must be, with their header stamps set: scans that mostly
+    /// repeat a stamp (all 0: a driver that never set them) leave a few poses
+    /// whose errors mean nothing.
+    fn check_scans(recording: &Recording, roles: &Roles, pass: &FirstPass) -> Result<()> {
+        if pass.scans.is_empty() {
+            return Err(bag_error(recording, format!("topic {} has no messages", recording.topics[roles.lidar].name)));
+        }
+        if pass.dropped_scans >= pass.scans.len() {
+            return Err(bag_error(
+                recording,
+                format!(
+                    "{} of the {} messages of {} repeat the stamp before them (the first stamp: {:.6} s): \
+                     the scans' header stamps are not set",
+                    pass.dropped_scans,
+                    pass.dropped_scans + pass.scans.len(),
+                    recording.topics[roles.lidar].name,
+                    pass.scans[0].stamp
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// A depth camera's pinhole, from its rectified camera_info.
+    fn depth_camera(recording: &Recording, roles: &Roles, pass: &FirstPass) -> Result<Option<PinholeCamera>> {
+        Ok(match (roles.range, &pass.depth_info) {
+            (RangeSensor::Lidar, _) => None,
+            (RangeSensor::DepthCamera, None) => {
+                return Err(bag_error(recording, "the depth camera's camera_info topic has no messages"));
+            }
+            (RangeSensor::DepthCamera, Some(info)) => {
+                // Points through a pinhole that the images do not follow would be bent.
+                if !info.is_undistorted() {
+                    return Err(bag_error(
+                        recording,
+                        format!("the depth camera_info has distortion {:?}: depth images must be rectified", info.d),
+                    ));
+                }
+                let camera = info.raw_camera();
+                camera.validate().map_err(|why| bag_error(recording, format!("depth camera_info: {why}")))?;
+                Some(camera)
+            }
+        })
+    }
+
+    /// The IMU log turned into the robot's frame, and the odometry log.
+    fn motion_logs(
+        recording: &Recording,
+        pass: &FirstPass,
+        base: &str,
+        options: &BagOptions,
+    ) -> Result<(Vec<ImuSample>, Vec<OdometrySample>)> {
+        let robot_from_imu = match &pass.imu_frame {
+            Some(frame) if !frame.is_empty() && (options.calib.is_none() || !pass.tf.is_empty()) => {
+                pass.tf.lookup(base, frame, false).or_else(|| pass.tf.lookup(base, frame, true)).ok_or_else(|| {
+                    bag_error(
+                        recording,
+                        format!("no transform from the IMU frame `{frame}` to `{base}` in /tf_static or /tf"),
+                    )
+                })?
+            }
+            _ => Pose3::identity(),
+        };
+        let imu: Vec<ImuSample> = pass
+            .imu
+            .iter()
+            .map(|m| ImuSample {
+                timestamp: m.header.stamp_s(),
+                accel: (robot_from_imu.rotation * m.linear_acceleration).into(),
+                gyro: (robot_from_imu.rotation * m.angular_velocity).into(),
+            })
+            .collect();
+        let odometry: Vec<OdometrySample> = pass
+            .odometry
+            .iter()
+            .map(|m| {
+                let (_, _, yaw) = m.pose.rotation.euler_angles();
+                let t = m.pose.translation.vector;
+                OdometrySample { timestamp: m.header.stamp_s(), x: t.x, y: t.y, yaw, v: m.linear.x, omega: m.angular.z }
+            })
+            .collect();
+        Ok((imu, odometry))
     }
 
     fn first_pass(recording: &Recording, roles: &Roles) -> Result<FirstPass> {
