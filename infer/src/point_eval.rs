@@ -6,6 +6,45 @@
 //! twice on one junction scores both, as the radius-based measures of
 //! corner detectors do.
 
+use image::DynamicImage;
+
+use crate::corner_response::{CornerResponse, strongest_corners};
+use crate::detector::Detector;
+
+/// The methods scored side by side: the detector, then Shi-Tomasi, Harris
+/// and random points at the detector's count on each photo.
+pub const METHODS: [&str; 4] = ["detector", "shi-tomasi", "harris", "random"];
+
+/// Each method's points on one photo scored against its labels (in the
+/// order of `METHODS`): the corner responses at least `radius` apart, the
+/// random points from a generator seeded by the photo's place `index`.
+pub fn score_photo(
+    detector: &Detector,
+    image: &DynamicImage,
+    labels: &[[f32; 2]],
+    radius: f32,
+    index: usize,
+) -> [PointScores; 4] {
+    let (w, h) = (image.width() as f32, image.height() as f32);
+    let detected: Vec<[f32; 2]> =
+        detector.detect(image).iter().map(|d| [(d.bbox.x1 + d.bbox.x2) / 2.0, (d.bbox.y1 + d.bbox.y2) / 2.0]).collect();
+    let count = detected.len();
+    let gray = image.to_luma8();
+    let mut state = 0x9E37_79B9_7F4A_7C15u64 ^ index as u64;
+    let mut uniform = || {
+        state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        (state >> 40) as f32 / (1u64 << 24) as f32
+    };
+    let random: Vec<[f32; 2]> = (0..count).map(|_| [uniform() * w, uniform() * h]).collect();
+    [
+        detected,
+        strongest_corners(&gray, CornerResponse::ShiTomasi, count, radius, 3),
+        strongest_corners(&gray, CornerResponse::Harris, count, radius, 3),
+        random,
+    ]
+    .map(|points| PointScores::of(&points, labels, radius))
+}
+
 /// Counts over one image or summed over many.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct PointScores {

@@ -220,8 +220,7 @@ struct MethodScores {
 
 fn eval_points(args: EvalPointsArgs) -> Result<()> {
     use datasets::formats::read_point_labels;
-    use infer::corner_response::{CornerResponse, strongest_corners};
-    use infer::point_eval::PointScores;
+    use infer::point_eval::{METHODS, PointScores, score_photo};
     if !(0.0..=1.0).contains(&args.min_score) {
         bail!("--min-score {} is outside 0..1", args.min_score);
     }
@@ -229,7 +228,6 @@ fn eval_points(args: EvalPointsArgs) -> Result<()> {
     let mut detector = load(&args.checkpoint, args.backend)?;
     detector.config.detection.score_threshold = args.min_score;
     let radius = args.radius as f32;
-    const METHODS: [&str; 4] = ["detector", "shi-tomasi", "harris", "random"];
     let mut totals = [PointScores::default(); 4];
     let bar = indicatif::ProgressBar::new(photos.len() as u64);
     if std::env::var("CI").is_ok_and(|v| v == "true") {
@@ -253,26 +251,9 @@ fn eval_points(args: EvalPointsArgs) -> Result<()> {
                 photo.display()
             );
         }
-        let detections = detector.detect(&image);
-        let detected: Vec<[f32; 2]> =
-            detections.iter().map(|d| [(d.bbox.x1 + d.bbox.x2) / 2.0, (d.bbox.y1 + d.bbox.y2) / 2.0]).collect();
-        let count = detected.len();
-        let gray = image.to_luma8();
-        // Random points from a generator seeded by the image's place in the list.
-        let mut state = 0x9E37_79B9_7F4A_7C15u64 ^ k as u64;
-        let mut uniform = || {
-            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            (state >> 40) as f32 / (1u64 << 24) as f32
-        };
-        let random: Vec<[f32; 2]> = (0..count).map(|_| [uniform() * w, uniform() * h]).collect();
-        let per_method = [
-            detected,
-            strongest_corners(&gray, CornerResponse::ShiTomasi, count, radius, 3),
-            strongest_corners(&gray, CornerResponse::Harris, count, radius, 3),
-            random,
-        ];
-        for (total, points) in totals.iter_mut().zip(&per_method) {
-            total.add(&PointScores::of(points, &labels, radius));
+        let scores = score_photo(&detector, &image, &labels, radius, k);
+        for (total, score) in totals.iter_mut().zip(&scores) {
+            total.add(score);
         }
         bar.inc(1);
     }
