@@ -154,25 +154,7 @@ pub fn read_map(dir: &Path) -> datasets::Result<SavedMap> {
         ));
     }
     let within = |v: &Vec3| v.iter().all(|x| x.is_finite() && x.abs() <= MAX_COORDINATE_M);
-    let mut keyframes = Vec::with_capacity(file.keyframes.len());
-    for (k, a) in file.keyframes.iter().enumerate() {
-        let pose = pose_from_array(a).filter(|p| within(&p.translation.vector)).ok_or_else(|| {
-            DataError::invalid(
-                &json_path,
-                format!("keyframe {k} is not a pose with a unit quaternion within {MAX_COORDINATE_M} m"),
-            )
-        })?;
-        keyframes.push(pose);
-    }
-    let truth_origin = match &file.truth_origin {
-        Some(a) => Some(pose_from_array(a).filter(|p| within(&p.translation.vector)).ok_or_else(|| {
-            DataError::invalid(
-                &json_path,
-                format!("truth_origin is not a pose with a unit quaternion within {MAX_COORDINATE_M} m"),
-            )
-        })?),
-        None => None,
-    };
+    let (keyframes, truth_origin) = map_poses(&json_path, &file)?;
     if let Some(k) = file.corners.iter().position(|c| !within(&c.position) || !c.is_valid()) {
         return Err(DataError::invalid(
             &json_path,
@@ -197,9 +179,45 @@ pub fn read_map(dir: &Path) -> datasets::Result<SavedMap> {
     if file.wall_axis_deg.is_some_and(|a| !a.is_finite()) {
         return Err(DataError::invalid(&json_path, "wall_axis_deg is not a finite angle"));
     }
+    let points = read_map_points(dir, file.points, file.corners.len())?;
+    let wall_axis = file.wall_axis_deg.map(f64::to_radians);
+    Ok(SavedMap { corners: file.corners, walls: file.walls, wall_axis, points, keyframes, truth_origin })
+}
+
+/// The map's keyframes and ground-truth origin, each a pose with a unit
+/// quaternion within the coordinate bound.
+fn map_poses(json_path: &Path, file: &MapFile) -> datasets::Result<(Vec<Pose3>, Option<Pose3>)> {
+    let within = |v: &Vec3| v.iter().all(|x| x.is_finite() && x.abs() <= MAX_COORDINATE_M);
+    let mut keyframes = Vec::with_capacity(file.keyframes.len());
+    for (k, a) in file.keyframes.iter().enumerate() {
+        let pose = pose_from_array(a).filter(|p| within(&p.translation.vector)).ok_or_else(|| {
+            DataError::invalid(
+                json_path,
+                format!("keyframe {k} is not a pose with a unit quaternion within {MAX_COORDINATE_M} m"),
+            )
+        })?;
+        keyframes.push(pose);
+    }
+    let truth_origin = match &file.truth_origin {
+        Some(a) => Some(pose_from_array(a).filter(|p| within(&p.translation.vector)).ok_or_else(|| {
+            DataError::invalid(
+                json_path,
+                format!("truth_origin is not a pose with a unit quaternion within {MAX_COORDINATE_M} m"),
+            )
+        })?),
+        None => None,
+    };
+    Ok((keyframes, truth_origin))
+}
+
+/// The point map of `map.ply`: exactly the layout `localize run` writes,
+/// `points` map points (then `corners` corner vertices, skipped), each
+/// within the coordinate bound with a unit normal.
+fn read_map_points(dir: &Path, points_count: usize, corners: usize) -> datasets::Result<Vec<MapPoint>> {
+    let within = |v: &Vec3| v.iter().all(|x| x.is_finite() && x.abs() <= MAX_COORDINATE_M);
     let ply_path = dir.join("map.ply");
     let bytes = std::fs::read(&ply_path).map_err(|e| DataError::io(&ply_path, e))?;
-    let count = file.points + file.corners.len();
+    let count = points_count + corners;
     let header = ply_header(count);
     let Some(body) = bytes.strip_prefix(header.as_bytes()) else {
         return Err(DataError::invalid(
@@ -213,8 +231,8 @@ pub fn read_map(dir: &Path) -> datasets::Result<SavedMap> {
             format!("{} bytes of vertices, {} expected for {count}", body.len(), count * VERTEX_BYTES),
         ));
     }
-    let mut points = Vec::with_capacity(file.points);
-    for (k, vertex) in body.chunks_exact(VERTEX_BYTES).take(file.points).enumerate() {
+    let mut points = Vec::with_capacity(points_count);
+    for (k, vertex) in body.chunks_exact(VERTEX_BYTES).take(points_count).enumerate() {
         let f = |i: usize| f32::from_le_bytes(vertex[4 * i..4 * i + 4].try_into().expect("4 bytes")) as f64;
         let (position, normal) = (Vec3::new(f(0), f(1), f(2)), Vec3::new(f(3), f(4), f(5)));
         if !within(&position) || !normal.iter().all(|x| x.is_finite()) || (normal.norm() - 1.0).abs() > 1e-3 {
@@ -225,8 +243,7 @@ pub fn read_map(dir: &Path) -> datasets::Result<SavedMap> {
         }
         points.push(MapPoint { position, normal });
     }
-    let wall_axis = file.wall_axis_deg.map(f64::to_radians);
-    Ok(SavedMap { corners: file.corners, walls: file.walls, wall_axis, points, keyframes, truth_origin })
+    Ok(points)
 }
 
 #[cfg(test)]
