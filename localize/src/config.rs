@@ -73,6 +73,17 @@ impl LocalizeConfig {
     /// Checks every setting against the range where it means something; the
     /// message names the section and field (`normals.neighbours`).
     pub fn validate(&self) -> Result<(), InvalidSetting> {
+        self.validate_scan_stages()?;
+        self.validate_estimator()?;
+        self.scan_match.validate().map_err(|e| e.within("scan_match"))?;
+        self.sync.validate().map_err(|e| e.within("sync"))?;
+        self.relocalize.validate().map_err(|e| e.within("relocalize"))?;
+        self.depth.validate().map_err(|e| e.within("depth"))?;
+        self.level_floor.validate().map_err(|e| e.within("level_floor"))
+    }
+
+    /// The per-scan stages: down-sampling, normals, planes, corners.
+    fn validate_scan_stages(&self) -> Result<(), InvalidSetting> {
         let range = InvalidSetting::range;
         let (positive, non_negative, count) =
             (InvalidSetting::positive, InvalidSetting::non_negative, InvalidSetting::count);
@@ -97,6 +108,13 @@ impl LocalizeConfig {
         non_negative("corners.merge_radius_m", c.merge_radius_m, 10.0)?;
         non_negative("corners.edge_min_angle_deg", c.edge_min_angle_deg, 180.0)?;
         range("corners.edge_max_angle_deg", c.edge_max_angle_deg, c.edge_min_angle_deg, 180.0, false)?;
+        Ok(())
+    }
+
+    /// Fusion, landmarks, the pose solve and the filter.
+    fn validate_estimator(&self) -> Result<(), InvalidSetting> {
+        let (positive, non_negative, count) =
+            (InvalidSetting::positive, InvalidSetting::non_negative, InvalidSetting::count);
         let f = &self.fusion;
         positive("fusion.gate_m", f.gate_m, 100.0)?;
         positive("fusion.surface_radius_m", f.surface_radius_m, 100.0)?;
@@ -147,11 +165,7 @@ impl LocalizeConfig {
         ] {
             non_negative(name, v, 1000.0)?;
         }
-        self.scan_match.validate().map_err(|e| e.within("scan_match"))?;
-        self.sync.validate().map_err(|e| e.within("sync"))?;
-        self.relocalize.validate().map_err(|e| e.within("relocalize"))?;
-        self.depth.validate().map_err(|e| e.within("depth"))?;
-        self.level_floor.validate().map_err(|e| e.within("level_floor"))
+        Ok(())
     }
 }
 
