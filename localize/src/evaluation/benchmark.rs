@@ -215,56 +215,14 @@ pub fn run_benchmark(
         let record = match SequenceRecord::read(&dir, &inputs) {
             Some(record) => record,
             None => {
-                bar.set_message(format!("{case} at {speed} m/s: localizing"));
-                // Records were once kept inside `run/`, which a new run must replace whole.
-                let _ = std::fs::remove_file(dir.join("run").join(RECORD_FILE));
-                let measured = localize_into(&dir, "run", &sequence, &mut source, config)?;
-                bar.set_message(format!("{case} at {speed} m/s: without the camera"));
-                let without_camera =
-                    localize_into(&dir, "run-without-camera", &sequence, &mut CornerSource::Off, config)?;
-                bar.set_message(format!("{case} at {speed} m/s: without scan matching"));
-                let mut paper = config.clone();
-                paper.scan_match.enabled = false;
-                let without_scan_match = localize_into(&dir, "run-without-scan-match", &sequence, &mut source, &paper)?;
-                bar.set_message(format!("{case} at {speed} m/s: LIDAR alone"));
-                let lidar_alone = lidar_alone_into(&dir, config)?;
-                let ap50 = if measures_ap {
-                    let test = dir.join("detection").join("test.json");
-                    let set = infer::labeled::load_coco_set(&test, &detector.config.preprocess)?;
-                    Some(infer::eval::evaluate_set(&detector, &set, 4).ap50)
-                } else {
-                    None
-                };
-                let record = SequenceRecord {
-                    fused: measured.fused.overall,
-                    odometry_imu: measured.odometry_imu.overall,
-                    without_camera: without_camera.fused.overall,
-                    without_scan_match: without_scan_match.fused.overall,
-                    lidar_alone: lidar_alone.fused.overall,
-                    scans: measured.frames,
-                    corrected_frames: measured.corrected_frames,
-                    ms_per_frame: measured.mean_total_ms,
-                    ap50,
-                };
+                let progress = |what: &str| bar.set_message(format!("{case} at {speed} m/s: {what}"));
+                let record = measure_sequence(&dir, &sequence, &mut source, &detector, config, measures_ap, &progress)?;
                 record.write(&dir, &inputs)?;
                 record
             }
         };
         bar.inc(1);
-        // The peers' world, like a run's, is the robot at the first scan.
-        let raw = sequence_truth(&sequence).expect("a generated sequence has ground truth");
-        let truth =
-            &crate::input::sequence::relative_to(raw, &crate::input::sequence::truth_at(raw, sequence.frames[0].stamp));
-        let distance_m =
-            truth.poses.windows(2).map(|w| (w[1].translation.vector - w[0].translation.vector).norm()).sum();
-        let peers = PEERS
-            .iter()
-            .map(|name| {
-                let path = dir.join("peers").join(format!("{name}.txt"));
-                let summary = path.is_file().then(|| peer_errors(&path, truth)).transpose()?;
-                Ok((name.to_string(), summary))
-            })
-            .collect::<Result<Vec<_>>>()?;
+        let (distance_m, peers) = route_and_peers(&dir, &sequence)?;
         let levels = datasets::world::World::new(&data.world, 0).layout.levels.len();
         rows.push(BenchmarkRow {
             building,
@@ -285,15 +243,86 @@ pub fn run_benchmark(
         });
     }
     bar.finish_and_clear();
-    // A building's AP is measured once per seed, at its first speed.
+    fill_building_aps(&mut rows);
+    Ok(rows)
+}
+
+/// A building's AP is measured once per seed, at its first speed: its other
+/// speeds' rows repeat it.
+fn fill_building_aps(rows: &mut [BenchmarkRow]) {
     let aps: Vec<((u32, u64), Option<f64>)> =
         rows.iter().filter(|r| r.ap50.is_some()).map(|r| ((r.building, r.seed), r.ap50)).collect();
-    for row in &mut rows {
+    for row in rows {
         if row.ap50.is_none() {
             row.ap50 = aps.iter().find(|(key, _)| *key == (row.building, row.seed)).and_then(|(_, ap)| *ap);
         }
     }
-    Ok(rows)
+}
+
+/// A peer's name and its errors, when its trajectory is there.
+type PeerErrors = (String, Option<ErrorSummary>);
+
+/// The sequence's route length, and each peer's errors where its trajectory
+/// is in `dir/peers/`.
+fn route_and_peers(dir: &Path, sequence: &RecordedSequence) -> Result<(f64, Vec<PeerErrors>)> {
+    // The peers' world, like a run's, is the robot at the first scan.
+    let raw = sequence_truth(sequence).expect("a generated sequence has ground truth");
+    let truth =
+        &crate::input::sequence::relative_to(raw, &crate::input::sequence::truth_at(raw, sequence.frames[0].stamp));
+    let distance_m = truth.poses.windows(2).map(|w| (w[1].translation.vector - w[0].translation.vector).norm()).sum();
+    let peers = PEERS
+        .iter()
+        .map(|name| {
+            let path = dir.join("peers").join(format!("{name}.txt"));
+            let summary = path.is_file().then(|| peer_errors(&path, truth)).transpose()?;
+            Ok((name.to_string(), summary))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    Ok((distance_m, peers))
+}
+
+/// A sequence's runs: fused, without the camera, without scan matching
+/// (the paper's estimator), the LIDAR alone, and (at a building's first
+/// speed) the detector's AP@0.5 on its labelled images.
+fn measure_sequence(
+    dir: &Path,
+    sequence: &RecordedSequence,
+    source: &mut CornerSource,
+    detector: &infer::detector::Detector,
+    config: &LocalizeConfig,
+    measures_ap: bool,
+    progress: &dyn Fn(&str),
+) -> Result<SequenceRecord> {
+    progress("localizing");
+    // Records were once kept inside `run/`, which a new run must replace whole.
+    let _ = std::fs::remove_file(dir.join("run").join(RECORD_FILE));
+    let measured = localize_into(dir, "run", sequence, source, config)?;
+    progress("without the camera");
+    let without_camera = localize_into(dir, "run-without-camera", sequence, &mut CornerSource::Off, config)?;
+    progress("without scan matching");
+    let mut paper = config.clone();
+    paper.scan_match.enabled = false;
+    let without_scan_match = localize_into(dir, "run-without-scan-match", sequence, source, &paper)?;
+    progress("LIDAR alone");
+    let lidar_alone = lidar_alone_into(dir, config)?;
+    let ap50 = if measures_ap {
+        let test = dir.join("detection").join("test.json");
+        let set = infer::labeled::load_coco_set(&test, &detector.config.preprocess)?;
+        Some(infer::eval::evaluate_set(detector, &set, 4).ap50)
+    } else {
+        None
+    };
+    Ok(SequenceRecord {
+        fused: measured.fused.overall,
+        odometry_imu: measured.odometry_imu.overall,
+        without_camera: without_camera.fused.overall,
+        without_scan_match: without_scan_match.fused.overall,
+        lidar_alone: lidar_alone.fused.overall,
+        scans: measured.frames,
+        corrected_frames: measured.corrected_frames,
+        ms_per_frame: measured.mean_total_ms,
+        ap50,
+    })
 }
 
 /// What a sequence's fused run measured, kept in `run/` with what made it
