@@ -288,26 +288,7 @@ impl PlaneExtractor {
                 .copied()
                 .filter(|&i| labels[i as usize].is_none())
                 .collect();
-            let mut normal = seed.iter().fold(Vec3::zeros(), |a, &i| a + voting[i as usize].0).normalize();
-            let mut distance = seed.iter().map(|&i| normal.dot(&at(i as usize))).sum::<f64>() / seed.len() as f64;
-            let mut inliers = Vec::new();
-            // Gather, refit, gather again: the seed cell's plane is only as
-            // good as one cell; the refit uses every inlier.
-            for _ in 0..3 {
-                inliers = (0..points.len() as u32)
-                    .into_par_iter()
-                    .filter(|&i| {
-                        let i = i as usize;
-                        labels[i].is_none()
-                            && (normal.dot(&at(i)) - distance).abs() < c.inlier_distance_m
-                            && voting[i].0.dot(&normal).abs() > cos_inlier
-                    })
-                    .collect();
-                if inliers.len() < c.min_inliers {
-                    break;
-                }
-                (normal, distance) = fit_plane(&inliers, &at).0;
-            }
+            let inliers = gather_inliers(&seed, points, &labels, &voting, c);
             if inliers.len() < c.min_inliers {
                 exhausted.insert(key);
                 continue;
@@ -323,6 +304,39 @@ impl PlaneExtractor {
         reassign_to_nearest(&mut planes, &mut labels, &voting, cos_inlier, &at);
         PlaneSet { planes, labels }
     }
+}
+
+/// The untaken points of the plane a seed cell's points vote for. Gather,
+/// refit, gather again: the seed cell's plane is only as good as one cell;
+/// the refit uses every inlier.
+fn gather_inliers(
+    seed: &[u32],
+    points: &[Point3<f32>],
+    labels: &[Option<u16>],
+    voting: &[(Vec3, f64)],
+    c: &PlaneConfig,
+) -> Vec<u32> {
+    let at = |i: usize| points[i].cast::<f64>().coords;
+    let cos_inlier = c.inlier_angle_deg.to_radians().cos();
+    let mut normal = seed.iter().fold(Vec3::zeros(), |a, &i| a + voting[i as usize].0).normalize();
+    let mut distance = seed.iter().map(|&i| normal.dot(&at(i as usize))).sum::<f64>() / seed.len() as f64;
+    let mut inliers = Vec::new();
+    for _ in 0..3 {
+        inliers = (0..points.len() as u32)
+            .into_par_iter()
+            .filter(|&i| {
+                let i = i as usize;
+                labels[i].is_none()
+                    && (normal.dot(&at(i)) - distance).abs() < c.inlier_distance_m
+                    && voting[i].0.dot(&normal).abs() > cos_inlier
+            })
+            .collect();
+        if inliers.len() < c.min_inliers {
+            break;
+        }
+        (normal, distance) = fit_plane(&inliers, &at).0;
+    }
+    inliers
 }
 
 /// Least-squares plane (PCA) of some points: (unit normal, offset >= 0) and centroid.
