@@ -191,14 +191,16 @@ fn face_extent(vertical: &[&MapPoint], xy: [f64; 2], normal: f64, config: &MapCo
 }
 
 /// The vertical edges the pairs of vertical surfels vote for.
-fn vertical_edges(vertical: &[&MapPoint], config: &MapCornerConfig) -> Vec<Edge> {
+/// Every pair of vertical surfels within the pair radius whose planes cross
+/// at an angle votes, in the cell of the crossing point (seen from above),
+/// for an edge there: the crossing and the two planes' directions.
+fn edge_votes(vertical: &[&MapPoint], config: &MapCornerConfig) -> HashMap<[i64; 2], Vec<Vote>> {
     let r = config.pair_radius_m;
     let mut grid: HashMap<[i64; 2], Vec<usize>> = HashMap::new();
     for (k, p) in vertical.iter().enumerate() {
         grid.entry(cell2(p.position.x, p.position.y, r)).or_default().push(k);
     }
     let min_sin = config.min_angle_deg.to_radians().sin();
-    // Votes per cell: the crossing points and the heights of the two surfels.
     let mut votes: HashMap<[i64; 2], Vec<Vote>> = HashMap::new();
     for (i, a) in vertical.iter().enumerate() {
         let [cx, cy] = cell2(a.position.x, a.position.y, r);
@@ -234,6 +236,12 @@ fn vertical_edges(vertical: &[&MapPoint], config: &MapCornerConfig) -> Vec<Edge>
             }
         }
     }
+    votes
+}
+
+fn vertical_edges(vertical: &[&MapPoint], config: &MapCornerConfig) -> Vec<Edge> {
+    let r = config.pair_radius_m;
+    let votes = edge_votes(vertical, config);
     // Peaks: a cell whose 3 x 3 neighbourhood holds the most votes around it
     // (within the pair radius) and at least `min_votes`.
     let around = |c: [i64; 2]| -> Vec<Vote> {
