@@ -476,22 +476,12 @@ pub fn run_warnings(sequence: &dyn SensorSequence, result: &RunResult, metrics: 
         out.push("the ground truth does not overlap the run's times (within 0.01 s): no metrics.json".to_string());
     }
     let n = result.frames.len();
-    let no_corners: Vec<_> = result
-        .frames
-        .iter()
-        .filter_map(|f| if let FrameStatus::NoImage { why, .. } = &f.status { Some(why) } else { None })
-        .collect();
-    if let Some(why) = no_corners.first() {
-        out.push(format!("{} of {n} frames had no 2D corners, the first because: {why}", no_corners.len()));
-    }
-    let bad_clouds: Vec<_> = result
-        .frames
-        .iter()
-        .filter_map(|f| if let FrameStatus::BadCloud(why) = &f.status { Some(why) } else { None })
-        .collect();
-    if let Some(why) = bad_clouds.first() {
-        out.push(format!("{} of {n} frames had no usable cloud, the first because: {why}", bad_clouds.len()));
-    }
+    let lost = |what: &str, fault: &dyn Fn(&FrameStatus) -> Option<&FrameFault>| {
+        let faults: Vec<&FrameFault> = result.frames.iter().filter_map(|f| fault(&f.status)).collect();
+        faults.first().map(|why| format!("{} of {n} frames had {what}, the first because: {why}", faults.len()))
+    };
+    out.extend(lost("no 2D corners", &|s| if let FrameStatus::NoImage { why, .. } = s { Some(why) } else { None }));
+    out.extend(lost("no usable cloud", &|s| if let FrameStatus::BadCloud(why) = s { Some(why) } else { None }));
     if let Some((gap, stamp)) = longest_scan_gap(&result.frames) {
         out.push(format!("no scan for {gap:.2} s before the scan at {stamp:.3} (odometry/IMU carried the pose)"));
     }
@@ -632,11 +622,7 @@ pub fn write_outputs(
 /// Refuses an output folder that holds files `localize run` did not write
 /// (temporary files a killed writer left are its own).
 pub fn check_output_folder(out: &Path) -> Result<()> {
-    if out.exists() && !out.is_dir() {
-        return Err(datasets::DataError::invalid(out, "the output is not a folder").into());
-    }
-    datasets::atomic::check_writable(out)?;
-    let Ok(entries) = std::fs::read_dir(out) else { return Ok(()) };
+    let Some(entries) = writable_output_folder(out)? else { return Ok(()) };
     for entry in entries {
         let entry = entry.map_err(|e| datasets::DataError::io(out, e))?;
         let name = entry.file_name().to_string_lossy().into_owned();
@@ -652,6 +638,17 @@ pub fn check_output_folder(out: &Path) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// Refuses an output that is a file or cannot be written, before any work;
+/// the entries of the folder when it exists, for the caller's rule on what
+/// it may already hold.
+pub fn writable_output_folder(out: &Path) -> Result<Option<std::fs::ReadDir>> {
+    if out.exists() && !out.is_dir() {
+        return Err(datasets::DataError::invalid(out, "the output is not a folder").into());
+    }
+    datasets::atomic::check_writable(out)?;
+    Ok(std::fs::read_dir(out).ok())
 }
 
 #[cfg(test)]

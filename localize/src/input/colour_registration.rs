@@ -30,11 +30,9 @@ pub struct ContourFrame {
 impl ContourFrame {
     /// The frame of `depth` (seen by `depth_camera`) and its colour image in gray.
     pub fn new(depth: &DepthImage, depth_camera: &PinholeCamera, colour: &GrayImage, jump: f32) -> Self {
+        // Canny marks edges 255, the rest 0: the transform's distances are to the edges.
         let edges = imageproc::edges::canny(colour, 40.0, 120.0);
-        let inverted = image::GrayImage::from_fn(edges.width(), edges.height(), |x, y| {
-            image::Luma([if edges.get_pixel(x, y)[0] > 0 { 255 } else { 0 }])
-        });
-        let squared = imageproc::distance_transform::euclidean_squared_distance_transform(&inverted);
+        let squared = imageproc::distance_transform::euclidean_squared_distance_transform(&edges);
         let distance_px = squared.pixels().map(|p| (p[0] as f32).sqrt()).collect();
         Self {
             points: contour_points(depth, depth_camera, jump),

@@ -703,11 +703,7 @@ fn scores_at_two_radii(
 /// Refuses an output folder that holds anything but an earlier
 /// `autolabel`'s output (which is replaced whole), before the work.
 pub fn check_output_folder(out: &Path) -> Result<()> {
-    if out.exists() && !out.is_dir() {
-        return Err(datasets::DataError::invalid(out, "the output is not a folder").into());
-    }
-    datasets::atomic::check_writable(out)?;
-    let Ok(mut entries) = std::fs::read_dir(out) else { return Ok(()) };
+    let Some(mut entries) = crate::run::writable_output_folder(out)? else { return Ok(()) };
     if entries.next().is_some() && !out.join("autolabel.json").is_file() {
         return Err(datasets::DataError::invalid(
             out,
