@@ -283,7 +283,8 @@ impl RgbdSequence {
         let step = with_images.len().div_ceil(frames.max(1));
         let mut samples = Vec::new();
         for frame in with_images.iter().step_by(step) {
-            let depth = read_depth_png(&frame.depth, self.units_per_metre)?;
+            // Of the depth camera's size, as every frame of a run must be.
+            let depth = self.depth(&frame.depth).map_err(|fault| error(&frame.depth, fault.to_string()))?;
             let Some((_, path)) = &frame.image else { continue };
             let colour = datasets::atomic::read_image(path)?.to_luma8();
             samples.push(ContourFrame::new(&depth, &self.depth_camera, &colour, 0.1));
