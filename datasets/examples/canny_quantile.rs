@@ -20,7 +20,7 @@ fn main() -> Result<()> {
     let high: f32 = high.parse().context("CANNY_HIGH")?;
     let set = PathBuf::from(set);
     let config = PreprocessConfig::default();
-    let coco = datasets::formats::read_coco(&set)?;
+    let coco = datasets::io::formats::read_coco(&set)?;
     let root = set.parent().unwrap_or(std::path::Path::new("."));
     let mut shares = Vec::new();
     for entry in &coco.images {

@@ -22,7 +22,7 @@ fn main() -> Result<()> {
         ..Default::default()
     };
     config.validate().map_err(anyhow::Error::msg)?;
-    let coco = datasets::formats::read_coco(&set)?;
+    let coco = datasets::io::formats::read_coco(&set)?;
     let root = set.parent().unwrap_or(std::path::Path::new("."));
     let (mut seen, mut total, mut density) = (0usize, 0usize, 0.0f64);
     for entry in &coco.images {

@@ -5,6 +5,8 @@
 use std::error::Error;
 use std::process::ExitCode;
 
+use indicatif::{ProgressBar, ProgressStyle};
+
 /// An error and its causes on one line each, without a backtrace (a
 /// backtrace is for bugs; these are a user's input problems). A cause whose
 /// text the line above already ends with is skipped: error types that print
@@ -71,6 +73,18 @@ pub fn positive(text: &str) -> Result<f64, String> {
         Ok(v) => Err(format!("must be a finite number above 0, got {v}")),
         Err(_) => Err(format!("must be a number, got `{text}`")),
     }
+}
+
+/// A bar for `len` items of the data writers, labelled `what`.
+pub fn progress(len: usize, what: &str) -> ProgressBar {
+    let bar = ProgressBar::new(len as u64);
+    bar.set_style(
+        ProgressStyle::with_template("{msg:>12} [{bar:40}] {pos}/{len} ({eta})")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    bar.set_message(what.to_string());
+    bar
 }
 
 #[cfg(test)]

@@ -70,7 +70,7 @@ fn a_link_loop_and_a_dangling_link_are_named_as_what_they_are() {
     std::os::unix::fs::symlink(&looped, &looped).unwrap();
     let dangling = dir.path().join("gone.mcap");
     std::os::unix::fs::symlink(dir.path().join("moved.mcap"), &dangling).unwrap();
-    let error = |p: &std::path::Path| datasets::recording::Recording::open(p).err().unwrap().to_string();
+    let error = |p: &std::path::Path| datasets::io::recording::Recording::open(p).err().unwrap().to_string();
     let m = error(&looped);
     assert!(m.contains("loop.bag") && m.contains("a loop of symbolic links"), "{m}");
     let m = error(&dangling);

@@ -3,13 +3,13 @@
 //! glass, people and the motion during a sweep as a real robot would.
 
 use datasets::math::{Point3, Pose3, Vec3};
-use datasets::world::block::BlockKind;
-use datasets::world::layout::{CornerKind, Floor};
-use datasets::world::lidar::{LidarConfig, scan, sweep};
-use datasets::world::people::Walker;
-use datasets::world::route::{Route, pose_on_floor};
-use datasets::world::surface::SurfaceKind;
-use datasets::world::{Seen, World, WorldConfig};
+use datasets::simulator::world::block::BlockKind;
+use datasets::simulator::world::layout::{CornerKind, Floor};
+use datasets::simulator::world::lidar::{LidarConfig, scan, sweep};
+use datasets::simulator::world::people::Walker;
+use datasets::simulator::world::route::{Route, pose_on_floor};
+use datasets::simulator::world::surface::SurfaceKind;
+use datasets::simulator::world::{Seen, World, WorldConfig};
 
 fn building(n: u32) -> World {
     World::new(&WorldConfig { building: n, ..WorldConfig::default() }, 11)
@@ -224,13 +224,13 @@ fn a_sweep_is_distorted_by_the_motion_during_it() {
 
 #[test]
 fn a_generated_sequence_is_a_function_of_its_seeds() {
-    let mut config = datasets::generate::DatagenConfig::for_building(2);
+    let mut config = datasets::simulator::generate::DatagenConfig::for_building(2);
     config.detection.images = 2;
     config.detection.train = 1;
     config.sequence.frames = Some(3);
     let (a, b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
-    datasets::generate::generate(a.path(), &config).unwrap();
-    datasets::generate::generate(b.path(), &config).unwrap();
+    datasets::simulator::generate::generate(a.path(), &config).unwrap();
+    datasets::simulator::generate::generate(b.path(), &config).unwrap();
     let files = |root: &std::path::Path| -> Vec<(std::path::PathBuf, Vec<u8>)> {
         let mut out = Vec::new();
         let mut stack = vec![root.to_path_buf()];
@@ -257,7 +257,7 @@ fn a_generated_sequence_is_a_function_of_its_seeds() {
     // Another seed changes the noise and the looks, not the building.
     config.seed += 1;
     let c = tempfile::tempdir().unwrap();
-    datasets::generate::generate(c.path(), &config).unwrap();
+    datasets::simulator::generate::generate(c.path(), &config).unwrap();
     let cloud = |root: &std::path::Path| std::fs::read(root.join("sequence/cloud/0000000000.100000.pcd")).unwrap();
     assert_ne!(cloud(a.path()), cloud(c.path()));
     let world = |root: &std::path::Path| std::fs::read_to_string(root.join("sequence/world.json")).unwrap();

@@ -5,7 +5,7 @@
 use std::path::Path;
 use std::process::Command;
 
-use datasets::formats::read_coco;
+use datasets::io::formats::read_coco;
 
 fn coco_from_points(args: &[&str]) -> (bool, String) {
     let out = Command::new(env!("CARGO_BIN_EXE_coco-from-points")).args(args).output().unwrap();
@@ -39,7 +39,7 @@ fn photos_and_points_become_train_and_test_halves() {
     assert!(log.contains("train.json: 2 photos, 4 points; test.json: 2 photos, 4 points"), "{log}");
     assert!(log.contains("4 points outside their photo left out"), "{log}");
     let (train, test) = (read_coco(&out.join("train.json")).unwrap(), read_coco(&out.join("test.json")).unwrap());
-    let names = |set: &datasets::formats::CocoDataset| -> Vec<String> {
+    let names = |set: &datasets::io::formats::CocoDataset| -> Vec<String> {
         set.images
             .iter()
             .map(|im| Path::new(&im.file_name).file_name().unwrap().to_string_lossy().into_owned())

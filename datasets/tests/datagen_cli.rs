@@ -107,7 +107,7 @@ fn a_tiny_run_writes_the_documented_layout() {
     assert_eq!(settings["seed"], 11);
     assert_eq!(settings["sequence"]["rate_hz"], 2.0);
     // The same sequence as a ROS 2 recording.
-    let recording = datasets::recording::Recording::open(&bag).unwrap();
+    let recording = datasets::io::recording::Recording::open(&bag).unwrap();
     let count = |topic: &str| recording.topics[recording.topic(topic).unwrap()].count;
     assert_eq!(
         [count("/points"), count("/camera/image_raw/compressed"), count("/ground_truth"), count("/tf_static")],

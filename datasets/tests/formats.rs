@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use datasets::DataError;
 use datasets::camera::PinholeCamera;
-use datasets::formats::*;
+use datasets::io::formats::*;
 use datasets::math::Pose3;
 use nalgebra::{Point3, Translation3, UnitQuaternion, Vector3};
 
@@ -114,7 +114,7 @@ fn pcd_malformed_files_name_the_line_or_byte() {
     assert!(message(read_pcd(&p, NonFinite::Drop).unwrap_err()).contains("no `x` field"));
 
     // A compressed block whose LZF stream is corrupt: the error gives its byte offset.
-    let good = datasets::formats::pcd::pcd_bytes(&sample_cloud(false), PcdData::BinaryCompressed);
+    let good = datasets::io::formats::pcd::pcd_bytes(&sample_cloud(false), PcdData::BinaryCompressed);
     let start = good.windows(5).position(|w| w == b"DATA ").unwrap();
     let data_at = start + good[start..].iter().position(|&b| b == b'\n').unwrap() + 1;
     let mut broken = good.clone();
@@ -195,7 +195,7 @@ fn kitti_bin_round_trips_and_rejects_a_partial_record() {
     let path = dir.path().join("scan.bin");
     let mut cloud = sample_cloud(true);
     cloud.viewpoint = Pose3::identity();
-    datasets::formats::cloud::write_kitti_bin(&path, &cloud).unwrap();
+    datasets::io::formats::cloud::write_kitti_bin(&path, &cloud).unwrap();
     assert_eq!(read_cloud(&path, NonFinite::Drop).unwrap(), cloud);
     let mut bytes = std::fs::read(&path).unwrap();
     bytes.truncate(bytes.len() - 3);
@@ -308,7 +308,7 @@ fn real_tum_kitti_and_euroc_files_are_detected_and_read() {
     assert!(
         (kitti.poses[1].translation.vector - Vector3::new(-4.690294e-02, -2.839928e-02, 8.586941e-01)).norm() < 1e-9
     );
-    let timed = datasets::formats::trajectory::read_kitti(
+    let timed = datasets::io::formats::trajectory::read_kitti(
         &real("evo_trajectories/KITTI_00_gt.txt"),
         Some(&real("evo_trajectories/KITTI_00_gt_times.txt")),
     )
@@ -516,7 +516,7 @@ fn a_fifo_is_refused_at_once_instead_of_waiting_for_a_writer() {
     assert!(made.success());
     let e = message(read_cloud(&fifo, NonFinite::Drop).unwrap_err());
     assert!(e.contains("scan.pcd") && e.contains("not a regular file"), "{e}");
-    let e = datasets::recording::Recording::open(&fifo).unwrap_err().to_string();
+    let e = datasets::io::recording::Recording::open(&fifo).unwrap_err().to_string();
     assert!(e.contains("not a regular file"), "{e}");
 }
 

@@ -6,11 +6,11 @@
 
 use std::path::{Path, PathBuf};
 
-use datasets::formats::{Trajectory, read_tum};
-use datasets::recording::messages::{Encoding, MessageKind, camera_info, geometry, image, point_cloud};
-use datasets::recording::pose_topic::read_pose_topic;
-use datasets::recording::wire::WireReader;
-use datasets::recording::{RawMessage, Recording};
+use datasets::io::formats::{Trajectory, read_tum};
+use datasets::io::recording::messages::{Encoding, MessageKind, camera_info, geometry, image, point_cloud};
+use datasets::io::recording::pose_topic::read_pose_topic;
+use datasets::io::recording::wire::WireReader;
+use datasets::io::recording::{RawMessage, Recording};
 use serde_json::Value;
 
 fn manifest_dir() -> PathBuf {
@@ -55,7 +55,7 @@ fn messages(recording: &Recording, topic: &str) -> Vec<(u64, i64, Vec<u8>)> {
 fn decode_all<T>(
     recording: &Recording,
     topic: &str,
-    decode: impl for<'a> Fn(&mut dyn WireReader<'a>) -> datasets::recording::wire::WireResult<T>,
+    decode: impl for<'a> Fn(&mut dyn WireReader<'a>) -> datasets::io::recording::wire::WireResult<T>,
 ) -> Vec<T> {
     let k = recording.topic(topic).unwrap();
     let mut out = Vec::new();
@@ -344,7 +344,7 @@ fn an_unknown_chunk_compression_is_named() {
 
 #[test]
 fn a_cloud_without_xyz_and_an_unlisted_encoding_name_topic_and_message() {
-    use datasets::recording::wire::{CdrWriter, Header};
+    use datasets::io::recording::wire::{CdrWriter, Header};
     let header = Header { stamp_ns: 5, frame_id: "lidar".into() };
     let mut w = CdrWriter::new();
     w.header(&header);
@@ -361,7 +361,7 @@ fn a_cloud_without_xyz_and_an_unlisted_encoding_name_topic_and_message() {
     w.bytes(&[0, 0, 0, 0]);
     w.u8(1);
     let bytes = w.finish();
-    let e = datasets::recording::messages::decode(Encoding::Cdr, &bytes, point_cloud::point_cloud2).unwrap_err();
+    let e = datasets::io::recording::messages::decode(Encoding::Cdr, &bytes, point_cloud::point_cloud2).unwrap_err();
     assert!(e.0.contains("no x, y and z fields (fields: intensity)"), "{e}");
 
     let mut w = CdrWriter::new();
@@ -372,7 +372,7 @@ fn a_cloud_without_xyz_and_an_unlisted_encoding_name_topic_and_message() {
     w.u8(0);
     w.u32(4);
     w.bytes(&[0; 8]);
-    let e = datasets::recording::messages::decode(Encoding::Cdr, &w.finish(), image::image).unwrap_err();
+    let e = datasets::io::recording::messages::decode(Encoding::Cdr, &w.finish(), image::image).unwrap_err();
     assert!(e.0.contains("`yuv422` is not supported"), "{e}");
     // Through a recording the error names the file, the topic and the message index.
     let err = datasets::DataError::message(Path::new("x.mcap"), "/camera", 3, e.0);
@@ -381,13 +381,14 @@ fn a_cloud_without_xyz_and_an_unlisted_encoding_name_topic_and_message() {
 
 #[test]
 fn a_declared_size_beyond_the_message_is_an_error_not_an_allocation() {
-    use datasets::recording::wire::{CdrWriter, Header};
+    use datasets::io::recording::wire::{CdrWriter, Header};
     let mut w = CdrWriter::new();
     w.header(&Header { stamp_ns: 0, frame_id: String::new() });
     w.u32(1_000_000);
     w.u32(1_000_000);
     w.u32(4_000_000_000); // fields
-    let e = datasets::recording::messages::decode(Encoding::Cdr, &w.finish(), point_cloud::point_cloud2).unwrap_err();
+    let e =
+        datasets::io::recording::messages::decode(Encoding::Cdr, &w.finish(), point_cloud::point_cloud2).unwrap_err();
     assert!(e.0.contains("does not fit"), "{e}");
 }
 

@@ -6,14 +6,14 @@
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
-use datasets::formats::{self, NonFinite};
-use datasets::generate::{DatagenConfig, generate};
+use datasets::io::formats::{self, NonFinite};
 use datasets::math::{Point3, Pose3, Vec3};
-use datasets::world::World;
-use datasets::world::labels::{LabelConfig, visible_corners};
-use datasets::world::motion::{GRAVITY_MPS2, MotionConfig, heading, simulate_imu, simulate_odometry};
-use datasets::world::rig::Rig;
-use datasets::world::route::{Route, pose_on_floor};
+use datasets::simulator::generate::{DatagenConfig, generate};
+use datasets::simulator::world::World;
+use datasets::simulator::world::labels::{LabelConfig, visible_corners};
+use datasets::simulator::world::motion::{GRAVITY_MPS2, MotionConfig, heading, simulate_imu, simulate_odometry};
+use datasets::simulator::world::rig::Rig;
+use datasets::simulator::world::route::{Route, pose_on_floor};
 
 /// A short, fast version of the default data: the whole route at 1 m/s, 2 Hz.
 fn small_config() -> DatagenConfig {
@@ -148,7 +148,7 @@ fn lidar_points_lie_on_the_surfaces_within_the_noise() {
     let sigma = config.lidar.range_noise_m;
     let mut distances = Vec::new();
     for k in (0..truth.len()).step_by(7) {
-        let name = datasets::generate::stamp_name(truth.stamps[k]);
+        let name = datasets::io::formats::stamped_files::stamp_name(truth.stamps[k]);
         let cloud = formats::read_cloud(&seq.join("cloud").join(format!("{name}.pcd")), NonFinite::Reject).unwrap();
         assert!(cloud.len() > 8 * 1000, "frame {k}: {} points", cloud.len());
         let world_from_lidar = truth.poses[k] * calib.robot_from_lidar;

@@ -2,10 +2,11 @@
 //! the robot's pose on a ramp.
 
 use datasets::math::{Point3, Vec3};
-use datasets::world::World;
-use datasets::world::layout::{WorldConfig, unit};
-use datasets::world::route::{Route, pose_on_floor};
-use datasets::world::surface::{Material, Pattern, Surface, SurfaceKind};
+use datasets::seed::unit;
+use datasets::simulator::world::World;
+use datasets::simulator::world::layout::WorldConfig;
+use datasets::simulator::world::route::{Route, pose_on_floor};
+use datasets::simulator::world::surface::{Material, Pattern, Surface, SurfaceKind};
 
 #[test]
 fn a_rounded_right_angle_has_the_expected_length_and_headings() {

@@ -5,10 +5,10 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use datasets::formats::{self, PcdData, PlyFormat, PointCloud, Trajectory};
+use datasets::io::formats::{self, PcdData, PlyFormat, PointCloud, Trajectory};
+use datasets::io::recording::messages::Encoding;
+use datasets::io::recording::{Recording, mcap_export};
 use datasets::math::Pose3;
-use datasets::recording::messages::Encoding;
-use datasets::recording::{Recording, mcap_export};
 use nalgebra::{Point3, UnitQuaternion, Vector3};
 
 use crate::targets::{Target, message_selector};
@@ -186,20 +186,20 @@ pub fn generated() -> Vec<(Target, Vec<u8>)> {
     ));
     out.push((Target::Rosbag2Metadata, alias_bomb(9, 10).into_bytes()));
     let messages = [
-        (datasets::recording::MessageKind::PointCloud2, mcap_export::point_cloud2(1_500_000_000, "lidar", &cloud)),
+        (datasets::io::recording::MessageKind::PointCloud2, mcap_export::point_cloud2(1_500_000_000, "lidar", &cloud)),
         (
-            datasets::recording::MessageKind::CompressedImage,
+            datasets::io::recording::MessageKind::CompressedImage,
             mcap_export::compressed_image(1_500_000_000, "camera", "png", &tiny_png()),
         ),
-        (datasets::recording::MessageKind::CameraInfo, mcap_export::camera_info(1_500_000_000, "camera", &calib)),
-        (datasets::recording::MessageKind::Imu, mcap_export::imu(&imu[1], "imu")),
-        (datasets::recording::MessageKind::Odometry, mcap_export::odometry(&odometry[1], "odom", "base_link")),
+        (datasets::io::recording::MessageKind::CameraInfo, mcap_export::camera_info(1_500_000_000, "camera", &calib)),
+        (datasets::io::recording::MessageKind::Imu, mcap_export::imu(&imu[1], "imu")),
+        (datasets::io::recording::MessageKind::Odometry, mcap_export::odometry(&odometry[1], "odom", "base_link")),
         (
-            datasets::recording::MessageKind::TfMessage,
+            datasets::io::recording::MessageKind::TfMessage,
             mcap_export::tf_message(&[(1_500_000_000, "base_link", "lidar", trajectory.poses[3])]),
         ),
         (
-            datasets::recording::MessageKind::PoseStamped,
+            datasets::io::recording::MessageKind::PoseStamped,
             mcap_export::pose_stamped(1_500_000_000, "map", &trajectory.poses[4]),
         ),
     ];
@@ -229,7 +229,7 @@ pub fn alias_bomb(levels: usize, width: usize) -> String {
 
 /// One MCAP with uncompressed chunks (and their CRCs), one message of each
 /// kind on a topic of its type: the `mcap_content` target's seed.
-fn uncompressed_mcap(messages: &[(datasets::recording::MessageKind, Vec<u8>)]) -> Vec<u8> {
+fn uncompressed_mcap(messages: &[(datasets::io::recording::MessageKind, Vec<u8>)]) -> Vec<u8> {
     let mut out = std::io::Cursor::new(Vec::new());
     let mut writer =
         mcap::WriteOptions::new().compression(None).profile("ros2").create(&mut out).expect("an MCAP writer");

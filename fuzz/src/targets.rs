@@ -7,9 +7,9 @@
 use std::collections::HashMap;
 use std::path::Path;
 
-use datasets::formats::{self, NonFinite, PointCloud};
-use datasets::recording::messages::{self, Encoding, MessageKind};
-use datasets::recording::{mcap_file, ros1_bag, rosbag2, sqlite3};
+use datasets::io::formats::{self, NonFinite, PointCloud};
+use datasets::io::recording::messages::{self, Encoding, MessageKind};
+use datasets::io::recording::{mcap_file, ros1_bag, rosbag2, sqlite3};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Target {
@@ -263,7 +263,10 @@ fn ros_message(data: &[u8]) {
 }
 
 /// Visits every message of the container and decodes the known ones.
-fn decode_all(topics: &[datasets::recording::TopicInfo], visit: impl FnOnce(&mut datasets::recording::RawVisitor<'_>)) {
+fn decode_all(
+    topics: &[datasets::io::recording::TopicInfo],
+    visit: impl FnOnce(&mut datasets::io::recording::RawVisitor<'_>),
+) {
     let by_name: HashMap<&str, (Option<MessageKind>, Encoding)> =
         topics.iter().map(|t| (t.name.as_str(), (t.kind(), t.encoding))).collect();
     let mut on_message = |name: &str, _time: i64, data: &[u8]| {

@@ -51,26 +51,31 @@ fn the_generated_seeds_are_accepted_by_their_parsers() {
     // format; the project's writers and readers must agree.
     for (target, data) in fuzz::seeds::generated() {
         let accepted = match target {
-            Target::Pcd => datasets::formats::pcd::read_pcd_bytes("s.pcd".as_ref(), &data, Default::default()).is_ok(),
-            Target::Ply => datasets::formats::ply::read_ply_bytes("s.ply".as_ref(), &data, Default::default()).is_ok(),
+            Target::Pcd => {
+                datasets::io::formats::pcd::read_pcd_bytes("s.pcd".as_ref(), &data, Default::default()).is_ok()
+            }
+            Target::Ply => {
+                datasets::io::formats::ply::read_ply_bytes("s.ply".as_ref(), &data, Default::default()).is_ok()
+            }
             Target::Trajectory => {
-                datasets::formats::trajectory::parse_trajectory("t.txt".as_ref(), &String::from_utf8_lossy(&data))
+                datasets::io::formats::trajectory::parse_trajectory("t.txt".as_ref(), &String::from_utf8_lossy(&data))
                     .is_ok()
             }
             Target::Calib => {
-                datasets::formats::calib::parse_calibration("c.json".as_ref(), &String::from_utf8_lossy(&data)).is_ok()
+                datasets::io::formats::calib::parse_calibration("c.json".as_ref(), &String::from_utf8_lossy(&data))
+                    .is_ok()
             }
             Target::Coco => {
-                datasets::formats::coco::parse_coco("l.json".as_ref(), &String::from_utf8_lossy(&data)).is_ok()
+                datasets::io::formats::coco::parse_coco("l.json".as_ref(), &String::from_utf8_lossy(&data)).is_ok()
             }
             Target::CheckpointConfig => {
                 infer::checkpoint::parse_config("config.json".as_ref(), &String::from_utf8_lossy(&data)).is_ok()
             }
             Target::McapContent => {
                 let path = std::path::Path::new("c.mcap");
-                let topics = datasets::recording::mcap_file::topics(path, &data).unwrap();
+                let topics = datasets::io::recording::mcap_file::topics(path, &data).unwrap();
                 let mut n = 0;
-                datasets::recording::mcap_file::visit(path, &data, &mut |_, _, _| {
+                datasets::io::recording::mcap_file::visit(path, &data, &mut |_, _, _| {
                     n += 1;
                     Ok(())
                 })
@@ -87,7 +92,7 @@ fn the_generated_seeds_are_accepted_by_their_parsers() {
             }
             Target::Rosbag2Metadata => {
                 let dir = std::path::Path::new("bag");
-                let read = datasets::recording::rosbag2::parse_metadata(
+                let read = datasets::io::recording::rosbag2::parse_metadata(
                     dir,
                     &dir.join("metadata.yaml"),
                     &String::from_utf8_lossy(&data),
@@ -105,7 +110,7 @@ fn the_generated_seeds_are_accepted_by_their_parsers() {
 fn the_alias_bomb_seed_is_refused_before_it_expands() {
     let dir = std::path::Path::new("bag");
     let bomb = fuzz::seeds::alias_bomb(9, 10);
-    let error = datasets::recording::rosbag2::parse_metadata(dir, &dir.join("metadata.yaml"), &bomb).unwrap_err();
+    let error = datasets::io::recording::rosbag2::parse_metadata(dir, &dir.join("metadata.yaml"), &bomb).unwrap_err();
     assert!(error.to_string().contains("metadata.yaml"), "{error}");
 }
 
@@ -113,6 +118,6 @@ fn the_alias_bomb_seed_is_refused_before_it_expands() {
 fn a_declared_huge_size_is_an_error_not_an_allocation() {
     // The failure class the fuzzer guards against, written down once.
     let header = b"# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 1000000000000\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 1000000000000\nDATA binary\n";
-    let e = datasets::formats::pcd::read_pcd_bytes("huge.pcd".as_ref(), header, Default::default()).unwrap_err();
+    let e = datasets::io::formats::pcd::read_pcd_bytes("huge.pcd".as_ref(), header, Default::default()).unwrap_err();
     assert!(e.to_string().contains("huge.pcd"), "{e}");
 }

@@ -8,7 +8,7 @@ use rayon::prelude::*;
 use crate::boxes::BBox;
 use crate::metrics::TruthCorner;
 use datasets::DataError;
-use datasets::formats::read_coco;
+use datasets::io::formats::read_coco;
 use datasets::preprocess::{ImageToNet, NetInput, PreprocessConfig, network_input};
 
 #[derive(Debug, Clone)]

@@ -12,7 +12,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
-use datasets::formats::{NonFinite, read_cloud};
+use datasets::io::formats::{NonFinite, read_cloud};
 use datasets::math::{Pose3, Vec3};
 use datasets::undistort::distort;
 use image::{Rgb, RgbImage};

@@ -6,7 +6,7 @@ use std::fmt::Write as _;
 use std::path::Path;
 use std::time::Instant;
 
-use datasets::formats::{Trajectory, write_tum};
+use datasets::io::formats::{Trajectory, write_tum};
 use datasets::math::Pose3;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
@@ -167,7 +167,7 @@ pub fn run_with(
 /// detector's clock, the map placement still to do, what was made so far.
 struct RunState<'a> {
     config: &'a LocalizeConfig,
-    calibration: datasets::formats::Calibration,
+    calibration: datasets::io::formats::Calibration,
     localizer: Localizer,
     fused: Ekf,
     /// Odometry/IMU alone: the reference trajectory.
@@ -210,7 +210,8 @@ impl RunState<'_> {
             }
             _ => calibration.camera_from_lidar.inverse(),
         };
-        let name = image.as_ref().map_or_else(|_| datasets::generate::stamp_name(stamp), |i| i.name.clone());
+        let name =
+            image.as_ref().map_or_else(|_| datasets::io::formats::stamped_files::stamp_name(stamp), |i| i.name.clone());
         let camera_off = matches!(source, CornerSource::Off);
         let image = image
             .and_then(|i| i.image)

@@ -3,9 +3,9 @@
 
 use std::collections::BTreeMap;
 
-use datasets::formats::PointCloud;
-use datasets::recording::Recording;
-use datasets::recording::mcap_export::point_cloud2;
+use datasets::io::formats::PointCloud;
+use datasets::io::recording::Recording;
+use datasets::io::recording::mcap_export::point_cloud2;
 use localize::input::bag_sequence::{BagOptions, find_roles};
 
 /// An MCAP with two PointCloud2 topics and nothing else.

@@ -176,7 +176,7 @@ fn run_on_a_bag_writes_the_trajectory_in_the_recording_clock_and_its_metrics() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(stdout.contains("10 of 10 scans have an image within 0.05 s"), "{stdout}");
-    let (trajectory, _) = datasets::formats::read_trajectory(&out_dir.join("trajectory.txt")).unwrap();
+    let (trajectory, _) = datasets::io::formats::read_trajectory(&out_dir.join("trajectory.txt")).unwrap();
     assert_eq!(trajectory.len(), 10);
     // Epoch seconds of the LIDAR's header stamps.
     for (k, t) in trajectory.stamps.iter().enumerate() {

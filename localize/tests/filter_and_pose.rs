@@ -2,7 +2,7 @@
 //! known rigid transform.
 
 use datasets::math::{Pose3, Vec3};
-use datasets::world::motion::{MotionConfig, simulate_imu, simulate_odometry};
+use datasets::simulator::world::motion::{MotionConfig, simulate_imu, simulate_odometry};
 use localize::estimation::ekf::{Ekf, EkfConfig};
 use localize::estimation::pose::{Correspondence, PoseConfig, PoseSolver};
 use localize::estimation::sensor_replay::SensorReplay;

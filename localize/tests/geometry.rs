@@ -144,7 +144,7 @@ fn bad_clouds_are_errors_not_panics() {
 #[test]
 fn real_room_scan_has_floor_ceiling_and_walls() {
     let path = manifest_dir().join("../../shared/data/pcl_room_scans/room_scan1.pcd");
-    let cloud = datasets::formats::read_cloud(&path, datasets::formats::NonFinite::Drop)
+    let cloud = datasets::io::formats::read_cloud(&path, datasets::io::formats::NonFinite::Drop)
         .unwrap_or_else(|e| panic!("{e} (the shared data folder is needed for this test)"));
     let stages = LocalizeConfig::default().geometry_stages().unwrap();
     let result = stages.run(&cloud.points, &Vec3::zeros()).unwrap();

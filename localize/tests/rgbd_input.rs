@@ -184,7 +184,7 @@ fn the_real_seven_scenes_and_tum_folders_read_as_published() {
 /// camera_info, the depth camera's place on the robot in /tf_static and the
 /// robot's true poses, no LIDAR, IMU, wheels or colour camera.
 fn write_depth_mcap(path: &Path, frames: usize) {
-    use datasets::recording::mcap_export::{camera_info, depth_image_mm, pose_stamped, ros2_schema, tf_message};
+    use datasets::io::recording::mcap_export::{camera_info, depth_image_mm, pose_stamped, ros2_schema, tf_message};
     let file = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
     let mut writer = mcap::WriteOptions::new().profile("ros2").create(file).unwrap();
     let mut channel = |topic: &str, type_name: &str| {
@@ -195,7 +195,7 @@ fn write_depth_mcap(path: &Path, frames: usize) {
     let info = channel("/camera/depth/camera_info", "sensor_msgs/msg/CameraInfo");
     let tf = channel("/tf_static", "tf2_msgs/msg/TFMessage");
     let truth = channel("/ground_truth", "geometry_msgs/msg/PoseStamped");
-    let calib = datasets::formats::Calibration {
+    let calib = datasets::io::formats::Calibration {
         camera: datasets::camera::PinholeCamera { width: 640, height: 480, fx: FX, fy: FX, cx: 320.0, cy: 240.0 },
         camera_from_lidar: Pose3::identity(),
         robot_from_lidar: Pose3::identity(),
@@ -262,7 +262,7 @@ fn the_colour_camera_fitted_to_tums_registered_depth_is_its_published_one() {
     let calibration = RgbdSequence::calibration_of(&fit);
     let moved = seven.with_colour_calibration(calibration.clone(), Path::new("calib.json")).unwrap();
     assert_eq!(moved.calibration().camera, calibration.camera);
-    let small = datasets::formats::Calibration {
+    let small = datasets::io::formats::Calibration {
         camera: datasets::camera::PinholeCamera { width: 320, height: 240, ..calibration.camera.clone() },
         ..calibration
     };

@@ -4,7 +4,7 @@
 use std::path::Path;
 
 use datasets::camera::PinholeCamera;
-use datasets::formats::{
+use datasets::io::formats::{
     Calibration, CocoDataset, ImuSample, OdometrySample, PcdData, PointCloud, write_calibration, write_coco, write_imu,
     write_odometry,
 };
@@ -49,7 +49,7 @@ fn box_room() -> PointCloud {
 fn write_sequence(dir: &Path) {
     std::fs::create_dir_all(dir.join("cloud")).unwrap();
     for t in ["0.000000", "1.000000", "2.000000"] {
-        datasets::formats::write_pcd(&dir.join("cloud").join(format!("{t}.pcd")), &box_room(), PcdData::Binary)
+        datasets::io::formats::write_pcd(&dir.join("cloud").join(format!("{t}.pcd")), &box_room(), PcdData::Binary)
             .unwrap();
     }
     let calib = Calibration {
@@ -163,8 +163,11 @@ fn scans_take_the_nearest_image_within_the_tolerance_on_its_own_clock() {
     // Epoch nanoseconds keep what an f64 can of them (a quarter microsecond).
     let t = localize::input::sequence::stamp_of_name("1700000000123456789").unwrap();
     assert!((t - 1.7e9 - 0.123_456_789).abs() < 2.5e-7, "{t}");
-    assert_eq!(datasets::generate::stamp_name(9.5), "0000000009.500000");
-    assert!(datasets::generate::stamp_name(9.5) < datasets::generate::stamp_name(10.0), "names sort in time order");
+    assert_eq!(datasets::io::formats::stamped_files::stamp_name(9.5), "0000000009.500000");
+    assert!(
+        datasets::io::formats::stamped_files::stamp_name(9.5) < datasets::io::formats::stamped_files::stamp_name(10.0),
+        "names sort in time order"
+    );
     let bad = localize::input::sequence::SyncConfig { image_tolerance_s: f64::NAN, ..Default::default() };
     assert!(RecordedSequence::open_with(dir.path(), &bad).err().unwrap().to_string().contains("image_tolerance_s"));
 }
@@ -190,7 +193,7 @@ fn empty_logs_every_cloud_broken_and_scans_past_the_logs_are_errors() {
     // A scan 55 s after the logs end would be extrapolated, not measured.
     let dir = tempfile::tempdir().unwrap();
     write_sequence(dir.path());
-    datasets::formats::write_pcd(&dir.path().join("cloud/57.0.pcd"), &box_room(), PcdData::Binary).unwrap();
+    datasets::io::formats::write_pcd(&dir.path().join("cloud/57.0.pcd"), &box_room(), PcdData::Binary).unwrap();
     let sequence = RecordedSequence::open(dir.path()).unwrap();
     let e = run_sequence(&sequence, &mut labels(dir.path()), &LocalizeConfig::default(), false).err().unwrap();
     assert!(e.to_string().contains("1 scans lie more than 1 s outside the odometry log ("), "{e}");
@@ -211,7 +214,7 @@ fn an_image_between_two_scans_serves_both_from_a_bag_as_from_the_folder() {
     let image = image::DynamicImage::new_rgb8(640, 480);
     datasets::atomic::write_image(&dir.path().join("rgb/1.5.png"), &image).unwrap();
     let bag = dir.path().join("still.mcap");
-    datasets::recording::mcap_export::write_sequence_mcap(dir.path(), &bag).unwrap();
+    datasets::io::recording::mcap_export::write_sequence_mcap(dir.path(), &bag).unwrap();
     let sync = localize::input::sequence::SyncConfig { image_tolerance_s: 0.6, ..Default::default() };
     let folder = RecordedSequence::open_with(dir.path(), &sync).unwrap();
     let recording = localize::input::bag_sequence::BagSequence::open(
@@ -240,11 +243,11 @@ fn a_generated_building_with_its_own_clocks_reads_as_scans_with_images_and_sweep
     // Building 1 with a robot's timing: 10 Hz sweeps, a 15 Hz camera 21 ms
     // off the LIDAR's clock, 50 Hz odometry, 200 Hz IMU.
     let dir = tempfile::tempdir().unwrap();
-    let mut config = datasets::generate::DatagenConfig::for_building(1);
+    let mut config = datasets::simulator::generate::DatagenConfig::for_building(1);
     config.detection.images = 0;
     config.detection.train = 0;
     config.sequence.frames = Some(6);
-    datasets::generate::generate(dir.path(), &config).unwrap();
+    datasets::simulator::generate::generate(dir.path(), &config).unwrap();
     let sequence = RecordedSequence::open(&dir.path().join("sequence")).unwrap();
     let stamps = sequence.frame_stamps();
     assert_eq!(stamps.len(), 6);
@@ -305,8 +308,8 @@ fn labels_give_no_corners_for_an_unreadable_image_or_one_they_do_not_list() {
     // Frame 1's image is corrupt; frame 2's is not in the labels file.
     std::fs::write(dir.path().join("rgb/1.000000.png"), b"\x89PNG broken").unwrap();
     let image_entry =
-        |id: u64, name: &str| datasets::formats::CocoImage { id, file_name: name.into(), width: 640, height: 480 };
-    let corner = datasets::formats::CocoAnnotation {
+        |id: u64, name: &str| datasets::io::formats::CocoImage { id, file_name: name.into(), width: 640, height: 480 };
+    let corner = datasets::io::formats::CocoAnnotation {
         id: 1,
         image_id: 1,
         category_id: 1,
@@ -320,7 +323,7 @@ fn labels_give_no_corners_for_an_unreadable_image_or_one_they_do_not_list() {
         info: None,
         images: vec![image_entry(0, "0.000000.png"), image_entry(1, "1.000000.png")],
         annotations: vec![corner],
-        categories: vec![datasets::formats::CocoCategory { id: 1, name: "corner".into(), supercategory: None }],
+        categories: vec![datasets::io::formats::CocoCategory { id: 1, name: "corner".into(), supercategory: None }],
     };
     write_coco(&dir.path().join("labels.json"), &labels).unwrap();
     let sequence = RecordedSequence::open(dir.path()).unwrap();

@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use datasets::formats::{Trajectory, read_trajectory};
+use datasets::io::formats::{Trajectory, read_trajectory};
 use datasets::math::{Pose3, Vec3};
 use localize::evaluation::eval::{Alignment, associate, compare};
 use localize::evaluation::similarity::umeyama;

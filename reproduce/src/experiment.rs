@@ -173,8 +173,8 @@ fn data_stage(out: &Path, plan: &Plan) -> Result<(PathBuf, serde_json::Value, Da
     if let Some(dir) = &plan.recorded {
         let train_json = dir.join("detection/train.json");
         let test_json = dir.join("detection/test.json");
-        let train = datasets::formats::read_coco(&train_json)?;
-        let test = datasets::formats::read_coco(&test_json)?;
+        let train = datasets::io::formats::read_coco(&train_json)?;
+        let test = datasets::io::formats::read_coco(&test_json)?;
         let sequence = RecordedSequence::open(&dir.join("sequence"))?;
         let route_length_m = sequence
             .ground_truth
@@ -202,7 +202,7 @@ fn data_stage(out: &Path, plan: &Plan) -> Result<(PathBuf, serde_json::Value, Da
     let dir = out.join("data");
     let (data, was) = run_stage(&dir, &plan.datagen, || {
         let started = Instant::now();
-        let s = datasets::generate::generate(&dir, &plan.datagen)?;
+        let s = datasets::simulator::generate::generate(&dir, &plan.datagen)?;
         Ok(DataOutputs {
             detection_images: s.detection_images,
             detection_labels: s.detection_labels,

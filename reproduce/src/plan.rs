@@ -5,8 +5,8 @@
 
 use std::path::PathBuf;
 
-use datasets::corpus::CorpusConfig;
-use datasets::generate::DatagenConfig;
+use datasets::simulator::corpus::CorpusConfig;
+use datasets::simulator::generate::DatagenConfig;
 use infer::backend::ComputeBackend;
 use infer::config::{Backbone, DEFAULT_WIDTH};
 use localize::config::LocalizeConfig;

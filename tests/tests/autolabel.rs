@@ -3,7 +3,7 @@
 //! against the generator's true labels, and written as a folder the
 //! trainer reads.
 
-use datasets::generate::{DatagenConfig, generate};
+use datasets::simulator::generate::{DatagenConfig, generate};
 use localize::config::LocalizeConfig;
 use localize::input::sequence::RecordedSequence;
 use localize::labels::autolabel::{AutolabelConfig, autolabel};
@@ -18,7 +18,7 @@ fn autolabels_of_a_generated_route_land_on_the_true_corners_and_train_reads_them
     data.sequence.speed_mps = 0.5;
     generate(dir.path(), &data).unwrap();
     let sequence = RecordedSequence::open(&dir.path().join("sequence")).unwrap();
-    let truth = datasets::formats::read_coco(&dir.path().join("sequence/labels.json")).unwrap();
+    let truth = datasets::io::formats::read_coco(&dir.path().join("sequence/labels.json")).unwrap();
     let out = dir.path().join("labels");
     let config = AutolabelConfig::default();
     let checkpoint = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../checkpoints/faster-rcnn");
@@ -41,7 +41,7 @@ fn autolabels_of_a_generated_route_land_on_the_true_corners_and_train_reads_them
     assert!(score.recall >= 0.05, "{score:?}");
     assert!(score.median_error_px < 4.0, "{score:?}");
     // The folder holds what `train --data` reads, and what a user looks at.
-    let train = datasets::formats::read_coco(&out.join("train.json")).unwrap();
+    let train = datasets::io::formats::read_coco(&out.join("train.json")).unwrap();
     train.validate(&out).unwrap();
     assert_eq!(train.images.len(), 32);
     assert!(out.join(&train.images[0].file_name).is_file());
@@ -64,7 +64,8 @@ fn autolabels_of_a_generated_route_land_on_the_true_corners_and_train_reads_them
     assert_eq!(loaded.iter().map(|im| im.ignore.len()).sum::<usize>(), crowd.len());
     assert_eq!(loaded.iter().map(|im| im.truth.len()).sum::<usize>(), train.annotations.len() - crowd.len());
     assert!(out.join("run/trajectory.txt").is_file() && out.join("autolabel.json").is_file());
-    let corners = datasets::formats::read_ply(&out.join("corners.ply"), datasets::formats::NonFinite::Reject).unwrap();
+    let corners =
+        datasets::io::formats::read_ply(&out.join("corners.ply"), datasets::io::formats::NonFinite::Reject).unwrap();
     assert_eq!(corners.len(), report.persistent_corners);
     // A second run into the same folder replaces it; a folder of other files is refused.
     let other = dir.path().join("other");

@@ -4,8 +4,8 @@
 //! `datasets/tests/data/recordings/`) run with their roles, calibration and
 //! unsynchronised camera found from the recording itself.
 
-use datasets::generate::{DatagenConfig, generate};
-use datasets::recording::mcap_export::write_sequence_mcap;
+use datasets::io::recording::mcap_export::write_sequence_mcap;
+use datasets::simulator::generate::{DatagenConfig, generate};
 use localize::config::LocalizeConfig;
 use localize::evaluation::eval::{Alignment, compare};
 use localize::input::bag_sequence::{BagOptions, BagSequence};

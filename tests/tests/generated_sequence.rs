@@ -2,8 +2,9 @@
 //! sequence reads back through the public readers with one image and one
 //! cloud per ground-truth pose, and odometry and IMU cover its time span.
 
-use datasets::formats::{self, NonFinite};
-use datasets::generate::{DatagenConfig, generate, stamp_name};
+use datasets::io::formats::stamped_files::stamp_name;
+use datasets::io::formats::{self, NonFinite};
+use datasets::simulator::generate::{DatagenConfig, generate};
 
 #[test]
 fn a_generated_sequence_satisfies_the_folder_contract() {

@@ -1,7 +1,7 @@
 //! End to end across crates: a generated sequence localized by the
 //! `localize` crate, with the shipped detector and with ground-truth corners.
 
-use datasets::generate::{DatagenConfig, generate};
+use datasets::simulator::generate::{DatagenConfig, generate};
 use localize::config::LocalizeConfig;
 use localize::input::corner_source::CornerSource;
 use localize::input::sequence::RecordedSequence;
@@ -49,10 +49,10 @@ fn fused_localization_beats_odometry_and_imu_on_a_generated_route() {
     for file in ["trajectory.txt", "reference.txt", "frames.csv", "metrics.json", "trajectory.png", "config.json"] {
         assert!(out.join(file).is_file(), "{file} missing");
     }
-    let (written, _) = datasets::formats::read_trajectory(&out.join("trajectory.txt")).unwrap();
+    let (written, _) = datasets::io::formats::read_trajectory(&out.join("trajectory.txt")).unwrap();
     assert_eq!(written.len(), 30);
     // The map: the point map and the corner landmarks, read back by the PLY reader.
-    let map = datasets::formats::read_ply(&out.join("map.ply"), datasets::formats::NonFinite::Reject).unwrap();
+    let map = datasets::io::formats::read_ply(&out.join("map.ply"), datasets::io::formats::NonFinite::Reject).unwrap();
     assert!(result.point_map.len() > 1000, "{} map points", result.point_map.len());
     assert_eq!(map.len(), result.point_map.len() + result.corner_landmarks.len());
     let first = result.point_map[0].position;
@@ -217,7 +217,7 @@ fn in_a_long_featureless_corridor_the_run_stays_within_the_odometry_and_imu() {
 fn the_shipped_detectors_run_inside_localization() {
     let dir = tempfile::tempdir().unwrap();
     let sequence = short_sequence(dir.path(), 4);
-    let truth = datasets::formats::read_coco(&dir.path().join("sequence/labels.json")).unwrap();
+    let truth = datasets::io::formats::read_coco(&dir.path().join("sequence/labels.json")).unwrap();
     // Each backbone's shipped checkpoint is of that backbone and finds corners.
     for backbone in ["faster-rcnn", "vgg16", "alexnet"] {
         let checkpoint = manifest_dir().join("../checkpoints").join(backbone);

@@ -43,7 +43,7 @@ fn quick_reproduction_writes_a_sane_report_and_resumes() {
         );
     }
     assert_eq!(results.localization.len(), 3);
-    let truth = datasets::formats::read_tum(&out.join("data/sequence/groundtruth.txt")).unwrap();
+    let truth = datasets::io::formats::read_tum(&out.join("data/sequence/groundtruth.txt")).unwrap();
     let mut fused_rows = Vec::new();
     for l in &results.localization {
         let all = |rows: &[reproduce::experiment::ErrorRow]| rows.iter().find(|r| r.level == "all").unwrap().clone();
@@ -53,7 +53,7 @@ fn quick_reproduction_writes_a_sane_report_and_resumes() {
         assert!(l.fused.iter().any(|r| r.level == "ramps"), "{:?}", l.fused);
         assert!(l.dir.join("trajectory.png").is_file());
         // The errors are those of the trajectory file against the ground truth.
-        let estimate = datasets::formats::read_tum(&l.dir.join("trajectory.txt")).unwrap();
+        let estimate = datasets::io::formats::read_tum(&l.dir.join("trajectory.txt")).unwrap();
         let e = compare(&truth, &estimate, Alignment::None, 0.01).unwrap().summary;
         assert_eq!(e.matched, fused.matched);
         for (name, recorded, recomputed) in [

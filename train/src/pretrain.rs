@@ -9,8 +9,8 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use datasets::corpus::{CorpusConfig, generate_corpus};
-use datasets::generate::DatagenConfig;
+use datasets::simulator::corpus::{CorpusConfig, generate_corpus};
+use datasets::simulator::generate::DatagenConfig;
 use infer::config::{Backbone, DetectorConfig};
 use infer::pretrained::save_trunk;
 use serde::{Deserialize, Serialize};

@@ -38,7 +38,7 @@ pub struct TrainSummary {
 }
 
 fn mix(a: u64, b: u64) -> u64 {
-    datasets::world::layout::mix(a ^ datasets::world::layout::mix(b))
+    datasets::seed::mix(a ^ datasets::seed::mix(b))
 }
 
 fn optimizer(config: &TrainConfig) -> ModuleOptimizer {

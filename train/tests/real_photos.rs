@@ -7,7 +7,7 @@
 
 use std::path::{Path, PathBuf};
 
-use datasets::formats::{coco_halves, labelled_photos, write_coco};
+use datasets::io::formats::{coco_halves, labelled_photos, write_coco};
 use infer::config::Backbone;
 use train::{Start, TrainConfig};
 

@@ -106,14 +106,14 @@ fn a_trunk_of_another_network_is_refused_before_training() {
 
 #[test]
 fn corpus_worlds_differ_and_are_valid() {
-    let c = datasets::corpus::CorpusConfig::default();
+    let c = datasets::simulator::corpus::CorpusConfig::default();
     let worlds: Vec<_> = (0..c.worlds).map(|k| c.world(k)).collect();
     for w in &worlds {
         w.validate().unwrap();
     }
     assert_ne!(worlds[0], worlds[1]);
     // None is the evaluation data's geometry.
-    assert!(worlds.iter().all(|w| *w != datasets::world::WorldConfig::default()));
+    assert!(worlds.iter().all(|w| *w != datasets::simulator::world::WorldConfig::default()));
 }
 
 #[test]

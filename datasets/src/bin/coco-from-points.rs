@@ -10,7 +10,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
 use clap::Parser;
-use datasets::formats::{CocoDataset, coco_halves, labelled_photos, write_coco};
+use datasets::io::formats::{CocoDataset, coco_halves, labelled_photos, write_coco};
 
 /// Make train.json and test.json (COCO) from photographs and point labels.
 #[derive(Debug, Parser)]

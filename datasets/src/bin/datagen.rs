@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use clap::Parser;
-use datasets::generate::{DatagenConfig, generate_then};
+use datasets::simulator::generate::{DatagenConfig, generate_then};
 
 /// Generate labeled images and a full sensor sequence from the synthetic
 /// three-level indoor area. Settings come from the defaults, then `--config`,
@@ -118,7 +118,7 @@ fn run_main() -> Result<()> {
     let mut messages = 0;
     let summary = generate_then(&args.out, &config, |out| {
         if let Some(bag) = &args.bag {
-            messages = datasets::recording::mcap_export::write_sequence_mcap(&out.join("sequence"), bag)?;
+            messages = datasets::io::recording::mcap_export::write_sequence_mcap(&out.join("sequence"), bag)?;
         }
         Ok(())
     })?;

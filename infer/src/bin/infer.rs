@@ -188,9 +188,9 @@ fn eval(args: EvalArgs) -> Result<()> {
 /// each required).
 fn photos_to_score(images: &Path, points: &Path) -> Result<Vec<(PathBuf, PathBuf)>> {
     if !images.is_file() {
-        return Ok(datasets::formats::labelled_photos(images, points)?);
+        return Ok(datasets::io::formats::labelled_photos(images, points)?);
     }
-    let coco = datasets::formats::read_coco(images)?;
+    let coco = datasets::io::formats::read_coco(images)?;
     let root = images.parent().unwrap_or(Path::new("."));
     let mut found = Vec::new();
     for im in &coco.images {
@@ -219,7 +219,7 @@ struct MethodScores {
 }
 
 fn eval_points(args: EvalPointsArgs) -> Result<()> {
-    use datasets::formats::read_point_labels;
+    use datasets::io::formats::read_point_labels;
     use infer::point_eval::{METHODS, PointScores, score_photo};
     if !(0.0..=1.0).contains(&args.min_score) {
         bail!("--min-score {} is outside 0..1", args.min_score);

@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
-use datasets::formats::read_trajectory;
+use datasets::io::formats::read_trajectory;
 use infer::detector_args::{BackendArg, DetectorArgs, SHIPPED_CHECKPOINT};
 use localize::config::LocalizeConfig;
 use localize::evaluation::eval::{Alignment, ErrorSummary, compare};
@@ -319,7 +319,7 @@ fn world_beside(gt: &Path) -> Option<PathBuf> {
 }
 
 /// A trajectory file, or a pose topic of a recording.
-fn trajectory_input(path: &Path, topic: Option<&str>, flag: &str) -> Result<datasets::formats::Trajectory> {
+fn trajectory_input(path: &Path, topic: Option<&str>, flag: &str) -> Result<datasets::io::formats::Trajectory> {
     let trajectory = read_trajectory_input(path, topic, flag)?;
     // Duplicate stamps with other poses, or poses out of order, would be
     // matched to the wrong partner without a word.
@@ -328,20 +328,20 @@ fn trajectory_input(path: &Path, topic: Option<&str>, flag: &str) -> Result<data
         eprintln!(
             "note: {}: {repeated} time stamp(s) written twice with poses within {} m and {} degree, read as they are",
             path.display(),
-            datasets::formats::trajectory::DUPLICATE_TOLERANCE_M,
-            datasets::formats::trajectory::DUPLICATE_TOLERANCE_DEG
+            datasets::io::formats::trajectory::DUPLICATE_TOLERANCE_M,
+            datasets::io::formats::trajectory::DUPLICATE_TOLERANCE_DEG
         );
     }
     Ok(trajectory)
 }
 
-fn read_trajectory_input(path: &Path, topic: Option<&str>, flag: &str) -> Result<datasets::formats::Trajectory> {
+fn read_trajectory_input(path: &Path, topic: Option<&str>, flag: &str) -> Result<datasets::io::formats::Trajectory> {
     match topic {
         Some(topic) => {
-            let recording = datasets::recording::Recording::open(path)?;
-            Ok(datasets::recording::pose_topic::read_pose_topic(&recording, topic)?)
+            let recording = datasets::io::recording::Recording::open(path)?;
+            Ok(datasets::io::recording::pose_topic::read_pose_topic(&recording, topic)?)
         }
-        None if path.is_dir() || datasets::recording::Recording::open(path).is_ok() => {
+        None if path.is_dir() || datasets::io::recording::Recording::open(path).is_ok() => {
             anyhow::bail!("{}: a recording; name its pose topic with {flag}", path.display())
         }
         None => Ok(read_trajectory(path)?.0),
@@ -349,7 +349,7 @@ fn read_trajectory_input(path: &Path, topic: Option<&str>, flag: &str) -> Result
 }
 
 fn inspect(args: &InspectArgs) -> Result<()> {
-    let recording = datasets::recording::Recording::open(&args.path)?;
+    let recording = datasets::io::recording::Recording::open(&args.path)?;
     print!("{}", recording.info());
     println!("Roles for `localize run --bag`:");
     match localize::input::bag_sequence::find_roles(&recording, &args.topics.options(None)) {
@@ -401,7 +401,7 @@ fn eval(args: &EvalArgs) -> Result<()> {
 }
 
 fn planes(args: &PlanesArgs) -> Result<()> {
-    let cloud = datasets::formats::read_cloud(&args.cloud, datasets::formats::NonFinite::Drop)?;
+    let cloud = datasets::io::formats::read_cloud(&args.cloud, datasets::io::formats::NonFinite::Drop)?;
     let geometry = localize::config::LocalizeConfig::default().geometry_stages()?;
     let sensor = cloud.viewpoint.translation.vector;
     let result = geometry.run(&cloud.points, &sensor).with_context(|| format!("{}", args.cloud.display()))?;
@@ -552,7 +552,7 @@ fn open_input(
             let mut sequence = RgbdSequence::open(dir, &config.depth, config.sync.image_tolerance_s)?;
             println!("{}: RGB-D folder ({:?} layout)", dir.display(), sequence.layout);
             if let Some(path) = &input.calib {
-                let calibration = datasets::formats::read_calibration(path)?;
+                let calibration = datasets::io::formats::read_calibration(path)?;
                 sequence = sequence.with_colour_calibration(calibration, path)?;
                 println!("colour camera from {}", path.display());
             }
@@ -606,7 +606,7 @@ fn autolabel(args: &AutolabelArgs) -> Result<()> {
     let truth = match args.truth_labels.clone().or(beside) {
         Some(path) => {
             println!("true labels: {}", path.display());
-            Some(datasets::formats::read_coco(&path)?)
+            Some(datasets::io::formats::read_coco(&path)?)
         }
         None => None,
     };
@@ -740,7 +740,7 @@ fn register_colour(args: &RegisterColourArgs) -> Result<()> {
         fit.mean_distance_px,
         fit.unregistered_distance_px
     );
-    datasets::formats::write_calibration(&args.out, &RgbdSequence::calibration_of(&fit))?;
+    datasets::io::formats::write_calibration(&args.out, &RgbdSequence::calibration_of(&fit))?;
     println!("wrote {} (use it with --calib)", args.out.display());
     Ok(())
 }

@@ -4,7 +4,7 @@
 //! points over a tenth of a second: both are placed by the odometry/IMU
 //! prediction, not assumed simultaneous.
 
-use datasets::formats::PointCloud;
+use datasets::io::formats::PointCloud;
 use datasets::math::Pose3;
 
 use crate::estimation::ekf::Ekf;
@@ -111,7 +111,7 @@ impl FrameMotion {
 
 #[cfg(test)]
 mod tests {
-    use datasets::formats::{ImuSample, OdometrySample};
+    use datasets::io::formats::{ImuSample, OdometrySample};
     use datasets::math::Vec3;
 
     use super::*;

@@ -6,7 +6,7 @@
 
 use std::time::Instant;
 
-use datasets::formats::{Calibration, PointCloud};
+use datasets::io::formats::{Calibration, PointCloud};
 use datasets::math::{Pose3, Vec3};
 use nalgebra::Point3;
 

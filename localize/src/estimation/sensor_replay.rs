@@ -4,7 +4,7 @@
 //! A rate or a velocity the recording does not measure (no gyro, no wheels)
 //! carries on from the previous frames' motion, as KISS-ICP predicts.
 
-use datasets::formats::{ImuSample, OdometrySample};
+use datasets::io::formats::{ImuSample, OdometrySample};
 use datasets::math::{Pose3, Vec3};
 
 use crate::estimation::ekf::{BodyMotion, Ekf, left_jacobian};

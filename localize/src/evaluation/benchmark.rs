@@ -18,8 +18,8 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use datasets::InvalidSetting;
-use datasets::formats::read_trajectory;
-use datasets::generate::{DatagenConfig, generate};
+use datasets::io::formats::read_trajectory;
+use datasets::simulator::generate::{DatagenConfig, generate};
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
 
@@ -83,10 +83,10 @@ impl BenchmarkPlan {
         if self.speeds_mps.is_empty() {
             return Err(InvalidSetting::field("speeds_mps", "needs at least one speed"));
         }
-        if let Some(b) = self.buildings.iter().find(|&&b| b > datasets::world::building::MAX_BUILDING) {
+        if let Some(b) = self.buildings.iter().find(|&&b| b > datasets::simulator::world::building::MAX_BUILDING) {
             let problem = format!(
                 "building {b} is neither the paper's (0) nor a generated one (1..={})",
-                datasets::world::building::MAX_BUILDING
+                datasets::simulator::world::building::MAX_BUILDING
             );
             return Err(InvalidSetting::field("buildings", problem));
         }
@@ -223,7 +223,7 @@ pub fn run_benchmark(
         };
         bar.inc(1);
         let (distance_m, peers) = route_and_peers(&dir, &sequence)?;
-        let levels = datasets::world::World::new(&data.world, 0).layout.levels.len();
+        let levels = datasets::simulator::world::World::new(&data.world, 0).layout.levels.len();
         rows.push(BenchmarkRow {
             building,
             seed,
@@ -394,12 +394,12 @@ fn localize_into(
     Ok(measured)
 }
 
-fn sequence_truth(sequence: &RecordedSequence) -> Option<&datasets::formats::Trajectory> {
+fn sequence_truth(sequence: &RecordedSequence) -> Option<&datasets::io::formats::Trajectory> {
     crate::input::sequence::SensorSequence::ground_truth(sequence)
 }
 
 /// The errors of a peer's trajectory (robot frame, world at the first scan).
-fn peer_errors(path: &Path, truth: &datasets::formats::Trajectory) -> Result<ErrorSummary> {
+fn peer_errors(path: &Path, truth: &datasets::io::formats::Trajectory) -> Result<ErrorSummary> {
     let (estimate, _) = read_trajectory(path)?;
     estimate.check_increasing(path)?;
     let comparison = compare(truth, &estimate, Alignment::None, 0.01)

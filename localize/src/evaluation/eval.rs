@@ -3,7 +3,7 @@
 //! reference, then the translation error of every matched pose, summarised as
 //! per-axis RMSE (the paper's Table 2) and the absolute trajectory error.
 
-use datasets::formats::Trajectory;
+use datasets::io::formats::Trajectory;
 use datasets::math::Vec3;
 use serde::Serialize;
 

@@ -4,7 +4,7 @@
 
 use std::path::Path;
 
-use datasets::formats::Trajectory;
+use datasets::io::formats::Trajectory;
 use datasets::math::Vec3;
 use datasets::{DataError, Result};
 

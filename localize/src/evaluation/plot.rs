@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use datasets::formats::Trajectory;
+use datasets::io::formats::Trajectory;
 use datasets::plot::{canvas, plot_error, register_font, write_png};
 use plotters::prelude::*;
 

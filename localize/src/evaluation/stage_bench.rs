@@ -42,10 +42,10 @@ pub struct StageBench {
 
 /// Times `frames` scans of each kind (and the detector, when given).
 pub fn stage_bench(detector: Option<&infer::detector::Detector>, frames: usize) -> Result<StageBench> {
-    let world = datasets::world::World::new(&Default::default(), 7);
-    let m8 = datasets::world::lidar::LidarConfig::default();
+    let world = datasets::simulator::world::World::new(&Default::default(), 7);
+    let m8 = datasets::simulator::world::lidar::LidarConfig::default();
     // A 64-beam scanner at 0.2 degrees: about 100k points a turn.
-    let dense = datasets::world::lidar::LidarConfig {
+    let dense = datasets::simulator::world::lidar::LidarConfig {
         beams: 64,
         min_elevation_deg: -25.0,
         max_elevation_deg: 15.0,
@@ -143,19 +143,19 @@ impl StageBench {
 }
 
 fn bench_scans(
-    world: &datasets::world::World,
-    lidar: &datasets::world::lidar::LidarConfig,
+    world: &datasets::simulator::world::World,
+    lidar: &datasets::simulator::world::lidar::LidarConfig,
     frames: usize,
-) -> Result<Vec<datasets::formats::PointCloud>> {
-    let route = datasets::world::route::Route::new(&world.layout.route, 1.2);
-    let rig = datasets::world::rig::Rig::default();
+) -> Result<Vec<datasets::io::formats::PointCloud>> {
+    let route = datasets::simulator::world::route::Route::new(&world.layout.route, 1.2);
+    let rig = datasets::simulator::world::rig::Rig::default();
     (0..frames)
         .map(|k| {
             let s = route.length() * (k as f64 + 0.5) / frames as f64;
             let (xy, heading) = route.at(s);
-            let robot = datasets::world::route::pose_on_floor(&world.layout, xy, heading)
+            let robot = datasets::simulator::world::route::pose_on_floor(&world.layout, xy, heading)
                 .ok_or_else(|| LocalizeError::Recording("the benchmark route left the free space".into()))?;
-            Ok(datasets::world::lidar::scan(world, lidar, &(robot * rig.robot_from_lidar), 0.0, k as u64))
+            Ok(datasets::simulator::world::lidar::scan(world, lidar, &(robot * rig.robot_from_lidar), 0.0, k as u64))
         })
         .collect()
 }
@@ -163,7 +163,7 @@ fn bench_scans(
 /// Mean milliseconds of each geometry stage over `scans`, run alone.
 fn bench_geometry(
     stages: &crate::scan::geometry::GeometryStages,
-    scans: &[datasets::formats::PointCloud],
+    scans: &[datasets::io::formats::PointCloud],
 ) -> Result<[f64; 3]> {
     let mut ms = [0.0; 3];
     for cloud in scans {
@@ -179,7 +179,7 @@ fn bench_geometry(
 /// geometry and the detector side by side.
 fn bench_frame(
     stages: &crate::scan::geometry::GeometryStages,
-    scans: &[datasets::formats::PointCloud],
+    scans: &[datasets::io::formats::PointCloud],
     detector: &infer::detector::Detector,
     image: &image::DynamicImage,
 ) -> Result<f64> {
@@ -195,8 +195,8 @@ fn bench_frame(
 /// Mean milliseconds to decode a 10k-point PointCloud2 (x, y, z, intensity,
 /// per-point time) and a 640x480 camera image, raw and PNG, from CDR.
 fn bench_decoding(repeats: usize) -> DecodeTimes {
-    use datasets::recording::messages::{Encoding, decode, image, point_cloud};
-    use datasets::recording::wire::{CdrWriter, Header};
+    use datasets::io::recording::messages::{Encoding, decode, image, point_cloud};
+    use datasets::io::recording::wire::{CdrWriter, Header};
     let header = Header { stamp_ns: 1_700_000_000_000_000_000, frame_id: "lidar".into() };
     let n = 10_000u32;
     let mut w = CdrWriter::new();

@@ -10,12 +10,12 @@ use std::collections::{HashMap, VecDeque};
 use std::path::{Path, PathBuf};
 
 use datasets::camera::PinholeCamera;
-use datasets::formats::{Calibration, ImuSample, OdometrySample, Trajectory, read_calibration};
+use datasets::io::formats::{Calibration, ImuSample, OdometrySample, Trajectory, read_calibration};
+use datasets::io::recording::messages::{MessageKind, camera_info, geometry, image, point_cloud};
+use datasets::io::recording::pose_topic::{POSE_KINDS, stamped_pose};
+use datasets::io::recording::tf_tree::TfTree;
+use datasets::io::recording::{RawMessage, Recording};
 use datasets::math::Pose3;
-use datasets::recording::messages::{MessageKind, camera_info, geometry, image, point_cloud};
-use datasets::recording::pose_topic::{POSE_KINDS, stamped_pose};
-use datasets::recording::tf_tree::TfTree;
-use datasets::recording::{RawMessage, Recording};
 use datasets::undistort::Undistorter;
 
 use crate::error::{LocalizeError, Result};
@@ -566,7 +566,7 @@ impl BagSequence {
         &self,
         m: &RawMessage<'_>,
         camera: &PinholeCamera,
-    ) -> std::result::Result<datasets::formats::PointCloud, FrameFault> {
+    ) -> std::result::Result<datasets::io::formats::PointCloud, FrameFault> {
         let depth =
             self.recording.decode(m, image::depth_image).map_err(|e| FrameFault::Unreadable(e.to_string()))?.depth;
         if (depth.width, depth.height) != (camera.width, camera.height) {
@@ -655,7 +655,7 @@ impl SensorSequence for BagSequence {
         }
         let image_slot: HashMap<u64, usize> = self.images.iter().enumerate().map(|(j, s)| (s.index, j)).collect();
         let mut held: HashMap<usize, std::result::Result<::image::DynamicImage, FrameFault>> = HashMap::new();
-        let mut pending: VecDeque<(usize, std::result::Result<datasets::formats::PointCloud, FrameFault>)> =
+        let mut pending: VecDeque<(usize, std::result::Result<datasets::io::formats::PointCloud, FrameFault>)> =
             VecDeque::new();
         let wanted: Vec<usize> = [Some(self.roles.lidar), self.roles.image].into_iter().flatten().collect();
         let mut flush = |pending: &mut VecDeque<_>,
@@ -682,7 +682,7 @@ impl SensorSequence for BagSequence {
                             if *users == 0 { held.remove(&j).expect("held") } else { held[&j].clone() };
                         Ok(FrameImage {
                             stamp: self.images[j].stamp,
-                            name: datasets::generate::stamp_name(self.images[j].stamp),
+                            name: datasets::io::formats::stamped_files::stamp_name(self.images[j].stamp),
                             image,
                         })
                     }

@@ -9,7 +9,7 @@
 //! pixels of the published intrinsics: that is its error bound.
 
 use datasets::camera::PinholeCamera;
-use datasets::formats::DepthImage;
+use datasets::io::formats::DepthImage;
 use datasets::math::Vec3;
 use image::GrayImage;
 use rayon::prelude::*;

@@ -42,7 +42,7 @@ impl CornerSource {
             let problem = format!("{noise_px} px outside [0, 1000]");
             return Err(InvalidSetting::field("label_noise_px", problem).into());
         }
-        let coco = datasets::formats::read_coco(path)?;
+        let coco = datasets::io::formats::read_coco(path)?;
         let mut by_image: HashMap<String, Vec<[f64; 2]>> = HashMap::new();
         let names: HashMap<u64, String> = coco
             .images

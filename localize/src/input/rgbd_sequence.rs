@@ -20,7 +20,7 @@
 use std::path::{Path, PathBuf};
 
 use datasets::camera::PinholeCamera;
-use datasets::formats::{
+use datasets::io::formats::{
     Calibration, DepthImage, ImuSample, OdometrySample, PointCloud, Trajectory, read_depth_png, read_tum,
 };
 use datasets::math::{Pose3, Rot3};
@@ -368,7 +368,7 @@ fn read_file_list(path: &Path, dir: &Path) -> Result<Vec<(f64, PathBuf)>> {
 fn tum_camera(dir: &Path) -> Result<(PinholeCamera, f64)> {
     let own = dir.join("calib.json");
     if own.is_file() {
-        return Ok((datasets::formats::read_calibration(&own)?.camera, 5000.0));
+        return Ok((datasets::io::formats::read_calibration(&own)?.camera, 5000.0));
     }
     let yaml = std::fs::read_dir(dir)
         .map_err(|e| error(dir, e.to_string()))?

@@ -7,7 +7,7 @@
 
 use std::path::PathBuf;
 
-use datasets::formats::{Calibration, ImuSample, OdometrySample, Trajectory};
+use datasets::io::formats::{Calibration, ImuSample, OdometrySample, Trajectory};
 
 use crate::error::Result;
 use crate::input::frame_fault::FrameFault;

@@ -14,7 +14,7 @@
 use std::path::{Path, PathBuf};
 
 use datasets::InvalidSetting;
-use datasets::formats::{
+use datasets::io::formats::{
     CLOUD_EXTENSIONS, Calibration, IMAGE_EXTENSIONS, ImuSample, NonFinite, OdometrySample, PointCloud, Trajectory,
     read_calibration, read_cloud, read_imu, read_odometry, read_tum, stamped_files,
 };
@@ -192,7 +192,7 @@ fn error(path: &Path, message: impl Into<String>) -> LocalizeError {
     LocalizeError::Sequence { path: path.to_path_buf(), message: message.into() }
 }
 
-pub use datasets::generate::parse_stamp_name as stamp_of_name;
+pub use datasets::io::formats::stamped_files::parse_stamp_name as stamp_of_name;
 
 /// For each of `scans` (sorted), the index of the nearest of `images`
 /// (sorted) within `tolerance` seconds.

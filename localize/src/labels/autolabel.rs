@@ -12,9 +12,9 @@ use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
 
 use datasets::bbox::BBox;
-use datasets::formats::{CocoAnnotation, CocoDataset, CocoImage, corner_categories};
+use datasets::io::formats::{CocoAnnotation, CocoDataset, CocoImage, corner_categories};
 use datasets::math::{Pose3, Vec3};
-use datasets::world::labels::LabelConfig;
+use datasets::simulator::world::labels::LabelConfig;
 use image::DynamicImage;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
@@ -628,7 +628,7 @@ pub fn write_autolabels(
             let file_name = format!("images/{}.png", l.name);
             datasets::atomic::write_image(&dir.join(&file_name), &l.image)?;
             let points: Vec<[f64; 2]> = l.labels.labels.iter().map(|a| a.point).collect();
-            datasets::formats::write_point_labels(&dir.join(format!("points/{}.csv", l.name)), &points)?;
+            datasets::io::formats::write_point_labels(&dir.join(format!("points/{}.csv", l.name)), &points)?;
             hidden += l.labels.hidden;
             let id = entries.len() as u64 + 1;
             // Every 25th image is kept for the pictures (at most 8 of them, spread over the run below).
@@ -647,8 +647,8 @@ pub fn write_autolabels(
             ));
         }
         let (train, test) = splits(&entries, config.test_fraction, config.labels.box_size_px);
-        datasets::formats::write_coco(&dir.join("train.json"), &train)?;
-        datasets::formats::write_coco(&dir.join("test.json"), &test)?;
+        datasets::io::formats::write_coco(&dir.join("train.json"), &train)?;
+        datasets::io::formats::write_coco(&dir.join("test.json"), &test)?;
         let step = previews.len().div_ceil(8).max(1);
         for (name, picture) in previews.values().step_by(step) {
             datasets::atomic::write_image(&dir.join("preview").join(format!("{name}.png")), picture)?;

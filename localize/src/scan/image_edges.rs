@@ -6,7 +6,7 @@
 //! the image instead of the scan lines).
 
 use datasets::camera::PinholeCamera;
-use datasets::formats::DepthImage;
+use datasets::io::formats::DepthImage;
 use image::GrayImage;
 use nalgebra::Point3;
 use serde::{Deserialize, Serialize};

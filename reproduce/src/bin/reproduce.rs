@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 use clap::Parser;
-use datasets::corpus::CorpusConfig;
+use datasets::simulator::corpus::CorpusConfig;
 use infer::detector_args::BackendArg;
 use reproduce::plan::{Plan, TrunkSource};
 

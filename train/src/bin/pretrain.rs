@@ -13,7 +13,7 @@ use std::path::PathBuf;
 
 use anyhow::{Result, bail};
 use clap::Parser;
-use datasets::corpus::CorpusConfig;
+use datasets::simulator::corpus::CorpusConfig;
 use infer::config::{Backbone, DEFAULT_WIDTH};
 use train::pretrain::{PretrainConfig, pretrain};
 

@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
-use datasets::generate::{DatagenConfig, generate};
+use datasets::simulator::generate::{DatagenConfig, generate};
 use infer::backend::ComputeBackend;
 use infer::config::Backbone;
 use train::TrainConfig;
