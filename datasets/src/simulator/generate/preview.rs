@@ -11,6 +11,7 @@ use crate::error::Result;
 use crate::io::formats::stamped_files::stamp_name;
 use crate::simulator::world::World;
 use crate::simulator::world::labels::CornerLabel;
+use crate::simulator::world::layout::Layout;
 use crate::simulator::world::rig::Rig;
 use crate::simulator::world::route::Route;
 
@@ -88,8 +89,23 @@ fn top_down(world: &World, rig: &Rig, sequence: &Sequence) -> RgbImage {
         let (a, b) = (s.vertices[0], s.vertices[1]);
         imageproc::drawing::draw_line_segment_mut(&mut image, to_px(a.x, a.y), to_px(b.x, b.y), Rgb([0, 0, 0]));
     }
-    // Furniture in brown, glass in cyan, crates in orange (pillars and
-    // partitions are walls).
+    draw_blocks(&mut image, layout, &to_px);
+    draw_route(&mut image, layout, sequence, &to_px);
+    for c in &layout.corners {
+        let (u, v) = to_px(c.position[0], c.position[1]);
+        imageproc::drawing::draw_hollow_circle_mut(
+            &mut image,
+            (u as i32, v as i32),
+            3,
+            Rgb(CORNER_COLOURS[c.kind as usize]),
+        );
+    }
+    image
+}
+
+/// Furniture in brown, glass in cyan, crates in orange (pillars and
+/// partitions are drawn as walls).
+fn draw_blocks(image: &mut RgbImage, layout: &Layout, to_px: &dyn Fn(f64, f64) -> (f32, f32)) {
     for b in &layout.blocks {
         use crate::simulator::world::block::BlockKind;
         let colour = match b.kind {
@@ -101,33 +117,21 @@ fn top_down(world: &World, rig: &Rig, sequence: &Sequence) -> RgbImage {
         let f = b.footprint();
         for i in 0..4 {
             let (p, q) = (f[i], f[(i + 1) % 4]);
-            imageproc::drawing::draw_line_segment_mut(&mut image, to_px(p[0], p[1]), to_px(q[0], q[1]), colour);
+            imageproc::drawing::draw_line_segment_mut(image, to_px(p[0], p[1]), to_px(q[0], q[1]), colour);
         }
     }
-    // The whole planned route in pink under the driven part in red.
+}
+
+/// The whole planned route in pink under the driven part in red.
+fn draw_route(image: &mut RgbImage, layout: &Layout, sequence: &Sequence, to_px: &dyn Fn(f64, f64) -> (f32, f32)) {
     let planned = Route::new(&layout.route, 1.2);
     let steps = (planned.length() / 0.1).ceil() as usize;
     for k in 0..steps {
         let ((a, _), (b, _)) = (planned.at(k as f64 * 0.1), planned.at((k + 1) as f64 * 0.1));
-        imageproc::drawing::draw_line_segment_mut(
-            &mut image,
-            to_px(a[0], a[1]),
-            to_px(b[0], b[1]),
-            Rgb([255, 160, 160]),
-        );
+        imageproc::drawing::draw_line_segment_mut(image, to_px(a[0], a[1]), to_px(b[0], b[1]), Rgb([255, 160, 160]));
     }
     for pair in sequence.frames.windows(2) {
         let (a, b) = (pair[0].world_from_robot.translation.vector, pair[1].world_from_robot.translation.vector);
-        imageproc::drawing::draw_line_segment_mut(&mut image, to_px(a.x, a.y), to_px(b.x, b.y), Rgb([200, 0, 0]));
+        imageproc::drawing::draw_line_segment_mut(image, to_px(a.x, a.y), to_px(b.x, b.y), Rgb([200, 0, 0]));
     }
-    for c in &layout.corners {
-        let (u, v) = to_px(c.position[0], c.position[1]);
-        imageproc::drawing::draw_hollow_circle_mut(
-            &mut image,
-            (u as i32, v as i32),
-            3,
-            Rgb(CORNER_COLOURS[c.kind as usize]),
-        );
-    }
-    image
 }

@@ -70,13 +70,7 @@ pub(super) fn write_sequence(dir: &Path, world: &World, rig: &Rig, config: &Data
         pose_on_floor(layout, xy, heading).expect("the route was checked to stay inside the free space")
     };
     let last_scan = (count - 1) as f64 / s.rate_hz;
-    let image_stamps: Vec<f64> = match s.camera_rate_hz {
-        None => (0..count).map(|k| k as f64 / s.rate_hz + s.camera_delay_s).collect(),
-        Some(rate) => {
-            let end = last_scan + config.lidar.sweep_period_s;
-            (0..).map(|i| s.camera_delay_s + i as f64 / rate).take_while(|&t| t <= end).collect()
-        }
-    };
+    let image_stamps = image_stamps(config, count);
 
     let bar = progress(count + image_stamps.len(), "sequence");
     let frames: Vec<Result<Frame>> = (0..count)
@@ -120,15 +114,47 @@ pub(super) fn write_sequence(dir: &Path, world: &World, rig: &Rig, config: &Data
     // The logs run to the last image and the end of the last sweep.
     let last_image = image_stamps.last().copied().unwrap_or(0.0);
     let duration = (last_scan + config.lidar.sweep_period_s).max(last_image);
-    let odometry = simulate_odometry(&pose_at, duration, &config.motion, key(config.seed, stream::ODOMETRY, 0));
-    let imu = simulate_imu(&pose_at, duration, &config.motion, key(config.seed, stream::IMU, 0));
+    write_logs(dir, &frames, &pose_at, duration, rig, config)?;
+    write_labels(dir, &shots, rig)?;
+    atomic::write_json(&dir.join("world.json"), &WorldDescription::of(world))?;
+    Ok(Sequence { frames, shots, route_length_m: length, frames_after_route_end })
+}
+
+/// The camera's stamps: one per scan (after the camera's delay) without a
+/// rate of its own, else on its own clock up to the end of the last sweep.
+fn image_stamps(config: &DatagenConfig, count: usize) -> Vec<f64> {
+    let s = &config.sequence;
+    let last_scan = (count - 1) as f64 / s.rate_hz;
+    match s.camera_rate_hz {
+        None => (0..count).map(|k| k as f64 / s.rate_hz + s.camera_delay_s).collect(),
+        Some(rate) => {
+            let end = last_scan + config.lidar.sweep_period_s;
+            (0..).map(|i| s.camera_delay_s + i as f64 / rate).take_while(|&t| t <= end).collect()
+        }
+    }
+}
+
+/// Odometry and IMU over `duration`, the ground truth at the scans and the calibration.
+fn write_logs(
+    dir: &Path,
+    frames: &[Frame],
+    pose_at: &dyn Fn(f64) -> Pose3,
+    duration: f64,
+    rig: &Rig,
+    config: &DatagenConfig,
+) -> Result<()> {
+    let odometry = simulate_odometry(pose_at, duration, &config.motion, key(config.seed, stream::ODOMETRY, 0));
+    let imu = simulate_imu(pose_at, duration, &config.motion, key(config.seed, stream::IMU, 0));
     formats::write_odometry(&dir.join("odom.csv"), &odometry)?;
     formats::write_imu(&dir.join("imu.csv"), &imu)?;
     let mut truth = Trajectory::default();
     frames.iter().for_each(|f| truth.push(f.stamp, f.world_from_robot));
     formats::write_tum(&dir.join("groundtruth.txt"), &truth)?;
-    formats::write_calibration(&dir.join("calib.json"), &rig.calibration())?;
+    formats::write_calibration(&dir.join("calib.json"), &rig.calibration())
+}
 
+/// The images' corner labels as one COCO file.
+fn write_labels(dir: &Path, shots: &[Shot], rig: &Rig) -> Result<()> {
     let mut labels = CocoDataset { categories: corner_categories(), ..Default::default() };
     let mut next_id = 0;
     for (k, shot) in shots.iter().enumerate() {
@@ -141,7 +167,5 @@ pub(super) fn write_sequence(dir: &Path, world: &World, rig: &Rig, config: &Data
         });
         labels.annotations.extend(coco_annotations(&shot.labels, id, &mut next_id));
     }
-    formats::write_coco(&dir.join("labels.json"), &labels)?;
-    atomic::write_json(&dir.join("world.json"), &WorldDescription::of(world))?;
-    Ok(Sequence { frames, shots, route_length_m: length, frames_after_route_end })
+    formats::write_coco(&dir.join("labels.json"), &labels)
 }

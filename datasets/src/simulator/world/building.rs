@@ -131,19 +131,7 @@ impl<'r> Plan<'r> {
                 forward.push(entry);
             }
         }
-        // Back through every corridor and hall to the start.
-        let mut route = forward;
-        for k in (0..hall_count - 1).rev() {
-            let (exit_y, points, _) = &corridors[k];
-            route.extend(points.iter().rev().copied());
-            let hall = &halls[k];
-            route.push([hall.x[1] - LOOP_INSET_M, *exit_y]);
-            if k > 0 {
-                route.push([hall.x[0] + LOOP_INSET_M, corridors[k - 1].2]);
-            }
-        }
-        route.push([0.0, 0.0]);
-        route.dedup_by(|a, b| (a[0] - b[0]).abs() < 1e-9 && (a[1] - b[1]).abs() < 1e-9);
+        let route = round_trip(forward, &halls, &corridors);
 
         let config = WorldConfig { building: number, ..WorldConfig::default() };
         let regions = std::mem::take(&mut plan.regions);
@@ -231,96 +219,97 @@ impl<'r> Plan<'r> {
     /// points, the next hall's west x and its entry y.
     fn corridor(&mut self, hall: &Hall, exit_y: f64, with_ramp: bool) -> (Vec<[f64; 2]>, f64, f64) {
         let width = self.rng.random_range(1.8..2.6);
+        let start = CorridorStart { x1: hall.x[1], exit_y, width, index: self.regions.len() };
+        if self.rng.random_bool(0.5) {
+            self.straight_corridor(&start, with_ramp)
+        } else {
+            self.z_corridor(&start, with_ramp)
+        }
+    }
+
+    /// Straight along x, the ramp (if any) between two flat ends.
+    fn straight_corridor(&mut self, start: &CorridorStart, with_ramp: bool) -> (Vec<[f64; 2]>, f64, f64) {
+        let CorridorStart { x1, exit_y, width, index } = *start;
         let w = width / 2.0;
-        let x1 = hall.x[1];
         let (level, floor) = self.current_level();
         let flat = |h: f64| Floor::Flat { height_m: h };
-        let index = self.regions.len();
         let name = |what: &str| format!("corridor {index} {what}");
-        if self.rng.random_bool(0.5) {
-            // Straight along x, the ramp (if any) between two flat ends.
-            if with_ramp {
-                let (run, rise) = self.ramp(4.0..9.0);
-                self.levels.push(floor + rise);
-                let (a, b) = (x1 + 1.5, x1 + 1.5 + run);
-                let next = b + 1.5;
-                self.push_region(name("west"), [x1, a], [exit_y - w, exit_y + w], flat(floor), Some(level));
-                let ramp = Floor::Ramp { axis: Axis::X, from: a, to: b, h0: floor, h1: floor + rise };
-                self.push_region(name("ramp"), [a, b], [exit_y - w, exit_y + w], ramp, None);
-                self.push_region(
-                    name("east"),
-                    [b, next],
-                    [exit_y - w, exit_y + w],
-                    flat(floor + rise),
-                    Some(level + 1),
-                );
-                (Vec::new(), next, exit_y)
-            } else {
-                let next = x1 + self.rng.random_range(3.0..7.0);
-                self.push_region(name(""), [x1, next], [exit_y - w, exit_y + w], flat(floor), Some(level));
-                (Vec::new(), next, exit_y)
-            }
+        if with_ramp {
+            let (run, rise) = self.ramp(4.0..9.0);
+            self.levels.push(floor + rise);
+            let (a, b) = (x1 + 1.5, x1 + 1.5 + run);
+            let next = b + 1.5;
+            self.push_region(name("west"), [x1, a], [exit_y - w, exit_y + w], flat(floor), Some(level));
+            let ramp = Floor::Ramp { axis: Axis::X, from: a, to: b, h0: floor, h1: floor + rise };
+            self.push_region(name("ramp"), [a, b], [exit_y - w, exit_y + w], ramp, None);
+            self.push_region(name("east"), [b, next], [exit_y - w, exit_y + w], flat(floor + rise), Some(level + 1));
+            (Vec::new(), next, exit_y)
         } else {
-            // Z-shaped: east, north or south (climbing a ramp if any), east.
-            let sign = if self.rng.random_bool(0.5) { 1.0 } else { -1.0 };
-            let xm = x1 + self.rng.random_range(2.5..5.0);
-            let next = xm + self.rng.random_range(2.5..5.0);
-            let (run, rise) = if with_ramp { self.ramp(4.0..8.0) } else { (0.0, 0.0) };
-            let span = if with_ramp {
-                width + 2.0 + run + self.rng.random_range(0.0..2.0)
-            } else {
-                self.rng.random_range(3.0..8.0)
-            };
-            let entry_y = exit_y + sign * span;
-            let ys = |a: f64, b: f64| [a.min(b), a.max(b)];
-            self.push_region(name("west"), [x1, xm + w], [exit_y - w, exit_y + w], flat(floor), Some(level));
-            let (upper_level, upper_floor) = if with_ramp {
-                self.levels.push(floor + rise);
-                let a = exit_y + sign * (w + 1.0);
-                let b = a + sign * run;
-                self.push_region(
-                    name("north-south"),
-                    [xm - w, xm + w],
-                    ys(exit_y - sign * w, a),
-                    flat(floor),
-                    Some(level),
-                );
-                let [from, to] = ys(a, b);
-                let (h0, h1) = if sign > 0.0 { (floor, floor + rise) } else { (floor + rise, floor) };
-                self.push_region(
-                    name("ramp"),
-                    [xm - w, xm + w],
-                    [from, to],
-                    Floor::Ramp { axis: Axis::Y, from, to, h0, h1 },
-                    None,
-                );
-                self.push_region(
-                    name("north-south end"),
-                    [xm - w, xm + w],
-                    ys(b, entry_y + sign * w),
-                    flat(floor + rise),
-                    Some(level + 1),
-                );
-                (level + 1, floor + rise)
-            } else {
-                self.push_region(
-                    name("north-south"),
-                    [xm - w, xm + w],
-                    ys(exit_y - sign * w, entry_y + sign * w),
-                    flat(floor),
-                    Some(level),
-                );
-                (level, floor)
-            };
-            self.push_region(
-                name("east"),
-                [xm - w, next],
-                [entry_y - w, entry_y + w],
-                flat(upper_floor),
-                Some(upper_level),
-            );
-            (vec![[xm, exit_y], [xm, entry_y]], next, entry_y)
+            let next = x1 + self.rng.random_range(3.0..7.0);
+            self.push_region(name(""), [x1, next], [exit_y - w, exit_y + w], flat(floor), Some(level));
+            (Vec::new(), next, exit_y)
         }
+    }
+
+    /// Z-shaped: east, north or south (climbing a ramp if any), east.
+    fn z_corridor(&mut self, start: &CorridorStart, with_ramp: bool) -> (Vec<[f64; 2]>, f64, f64) {
+        let CorridorStart { x1, exit_y, width, index } = *start;
+        let w = width / 2.0;
+        let (level, floor) = self.current_level();
+        let flat = |h: f64| Floor::Flat { height_m: h };
+        let name = |what: &str| format!("corridor {index} {what}");
+        let sign = if self.rng.random_bool(0.5) { 1.0 } else { -1.0 };
+        let xm = x1 + self.rng.random_range(2.5..5.0);
+        let next = xm + self.rng.random_range(2.5..5.0);
+        let (run, rise) = if with_ramp { self.ramp(4.0..8.0) } else { (0.0, 0.0) };
+        let span = if with_ramp {
+            width + 2.0 + run + self.rng.random_range(0.0..2.0)
+        } else {
+            self.rng.random_range(3.0..8.0)
+        };
+        let entry_y = exit_y + sign * span;
+        let ys = |a: f64, b: f64| [a.min(b), a.max(b)];
+        self.push_region(name("west"), [x1, xm + w], [exit_y - w, exit_y + w], flat(floor), Some(level));
+        let (upper_level, upper_floor) = if with_ramp {
+            self.levels.push(floor + rise);
+            let a = exit_y + sign * (w + 1.0);
+            let b = a + sign * run;
+            self.push_region(name("north-south"), [xm - w, xm + w], ys(exit_y - sign * w, a), flat(floor), Some(level));
+            let [from, to] = ys(a, b);
+            let (h0, h1) = if sign > 0.0 { (floor, floor + rise) } else { (floor + rise, floor) };
+            self.push_region(
+                name("ramp"),
+                [xm - w, xm + w],
+                [from, to],
+                Floor::Ramp { axis: Axis::Y, from, to, h0, h1 },
+                None,
+            );
+            self.push_region(
+                name("north-south end"),
+                [xm - w, xm + w],
+                ys(b, entry_y + sign * w),
+                flat(floor + rise),
+                Some(level + 1),
+            );
+            (level + 1, floor + rise)
+        } else {
+            self.push_region(
+                name("north-south"),
+                [xm - w, xm + w],
+                ys(exit_y - sign * w, entry_y + sign * w),
+                flat(floor),
+                Some(level),
+            );
+            (level, floor)
+        };
+        self.push_region(
+            name("east"),
+            [xm - w, next],
+            [entry_y - w, entry_y + w],
+            flat(upper_floor),
+            Some(upper_level),
+        );
+        (vec![[xm, exit_y], [xm, entry_y]], next, entry_y)
     }
 
     /// Maybe a side room behind a doorway in `hall`'s north (`north`) or
@@ -414,34 +403,49 @@ impl<'r> Plan<'r> {
                 ));
             }
             for (kind, half, height) in wanted {
-                for _ in 0..60 {
-                    let yaw = if self.rng.random_bool(0.5) {
-                        self.rng.random_range(0.0..std::f64::consts::PI)
-                    } else {
-                        f64::from(self.rng.random_range(0..4u8)) * std::f64::consts::FRAC_PI_2
-                    };
-                    let r = half[0].hypot(half[1]) + 0.1;
-                    if x[1] - x[0] <= 2.0 * r || y[1] - y[0] <= 2.0 * r {
-                        break;
-                    }
-                    let centre = [self.rng.random_range(x[0] + r..x[1] - r), self.rng.random_range(y[0] + r..y[1] - r)];
-                    let block = Block { kind, centre, half, yaw, z: [floor, floor + height] };
-                    let clearance = 0.8;
-                    let clear_of_route = samples.iter().all(|&p| block.distance(p) > clearance);
-                    let clear_of_blocks = layout.blocks.iter().all(|b| {
-                        let d = (b.centre[0] - centre[0]).hypot(b.centre[1] - centre[1]);
-                        d > b.radius() + block.radius() + 0.15
-                    });
-                    // The whole footprint in this area, never across a wall.
-                    let on_floor = block
-                        .footprint()
-                        .iter()
-                        .all(|p| p[0] > x[0] + 0.05 && p[0] < x[1] - 0.05 && p[1] > y[0] + 0.05 && p[1] < y[1] - 0.05);
-                    if clear_of_route && clear_of_blocks && on_floor {
-                        layout.blocks.push(block);
-                        break;
-                    }
-                }
+                self.place(layout, samples, (x, y, floor), kind, half, height);
+            }
+        }
+    }
+
+    /// Up to 60 tries to place a block of `kind` (half sizes `half`, height
+    /// `height`) in the area `x` by `y` at floor height `floor`, clear of the
+    /// route, of the other blocks and of the area's walls.
+    fn place(
+        &mut self,
+        layout: &mut Layout,
+        samples: &[[f64; 2]],
+        (x, y, floor): ([f64; 2], [f64; 2], f64),
+        kind: BlockKind,
+        half: [f64; 2],
+        height: f64,
+    ) {
+        for _ in 0..60 {
+            let yaw = if self.rng.random_bool(0.5) {
+                self.rng.random_range(0.0..std::f64::consts::PI)
+            } else {
+                f64::from(self.rng.random_range(0..4u8)) * std::f64::consts::FRAC_PI_2
+            };
+            let r = half[0].hypot(half[1]) + 0.1;
+            if x[1] - x[0] <= 2.0 * r || y[1] - y[0] <= 2.0 * r {
+                break;
+            }
+            let centre = [self.rng.random_range(x[0] + r..x[1] - r), self.rng.random_range(y[0] + r..y[1] - r)];
+            let block = Block { kind, centre, half, yaw, z: [floor, floor + height] };
+            let clearance = 0.8;
+            let clear_of_route = samples.iter().all(|&p| block.distance(p) > clearance);
+            let clear_of_blocks = layout.blocks.iter().all(|b| {
+                let d = (b.centre[0] - centre[0]).hypot(b.centre[1] - centre[1]);
+                d > b.radius() + block.radius() + 0.15
+            });
+            // The whole footprint in this area, never across a wall.
+            let on_floor = block
+                .footprint()
+                .iter()
+                .all(|p| p[0] > x[0] + 0.05 && p[0] < x[1] - 0.05 && p[1] > y[0] + 0.05 && p[1] < y[1] - 0.05);
+            if clear_of_route && clear_of_blocks && on_floor {
+                layout.blocks.push(block);
+                break;
             }
         }
     }
@@ -489,4 +493,32 @@ fn route_samples(layout: &Layout) -> Option<Vec<[f64; 2]>> {
         }
     }
     Some(samples.into_iter().map(|(xy, _)| xy).collect())
+}
+
+/// The route out (`forward`) and back through every corridor and hall to
+/// the start; `corridors` as `Plan::draw` gathers them.
+fn round_trip(forward: Vec<[f64; 2]>, halls: &[Hall], corridors: &[(f64, Vec<[f64; 2]>, f64)]) -> Vec<[f64; 2]> {
+    let mut route = forward;
+    for k in (0..halls.len() - 1).rev() {
+        let (exit_y, points, _) = &corridors[k];
+        route.extend(points.iter().rev().copied());
+        let hall = &halls[k];
+        route.push([hall.x[1] - LOOP_INSET_M, *exit_y]);
+        if k > 0 {
+            route.push([hall.x[0] + LOOP_INSET_M, corridors[k - 1].2]);
+        }
+    }
+    route.push([0.0, 0.0]);
+    route.dedup_by(|a, b| (a[0] - b[0]).abs() < 1e-9 && (a[1] - b[1]).abs() < 1e-9);
+    route
+}
+
+/// Where a corridor leaves its hall: the hall's east x, the exit's y, the
+/// corridor's width and the index of its first region (for its names).
+#[derive(Clone, Copy)]
+struct CorridorStart {
+    x1: f64,
+    exit_y: f64,
+    width: f64,
+    index: usize,
 }

@@ -335,11 +335,34 @@ impl Layout {
     /// Derives the surfaces, corners and lights from the regions,
     /// obstacles and blocks.
     pub(super) fn build_surfaces_and_corners(&mut self, seed: u64) {
-        let mut surfaces = Vec::new();
-        let palette =
-            [[0.85, 0.82, 0.74], [0.72, 0.80, 0.86], [0.88, 0.78, 0.70], [0.78, 0.85, 0.75], [0.90, 0.88, 0.84]];
-        let pick = |k: u64| palette[(mix(seed ^ k) % palette.len() as u64) as usize];
+        let mut surfaces = self.floor_and_ceiling_surfaces(seed);
+        let (walls, x_wall_ends, y_wall_ends) = self.wall_surfaces(seed);
+        surfaces.extend(walls);
+        let mut corners = self.wall_and_ramp_corners(&x_wall_ends, &y_wall_ends);
+        self.box_surfaces_and_corners(seed, &mut surfaces, &mut corners);
+        for (bi, b) in self.blocks.iter().enumerate() {
+            surfaces.extend(b.surfaces(mix(seed ^ (7000 + bi as u64))));
+            for c in b.corners() {
+                push_corner(&mut corners, c.position, c.kind);
+            }
+        }
 
+        // A light under the ceiling over the middle of each region.
+        self.lights = self
+            .regions
+            .iter()
+            .map(|r| {
+                let (x, y) = ((r.x[0] + r.x[1]) / 2.0, (r.y[0] + r.y[1]) / 2.0);
+                Light { position: [x, y, self.ceiling_of(r, x, y) - 0.1] }
+            })
+            .collect();
+        self.surfaces = surfaces;
+        self.corners = corners;
+    }
+
+    /// A floor (or ramp) and a ceiling for each region.
+    fn floor_and_ceiling_surfaces(&self, seed: u64) -> Vec<Surface> {
+        let mut surfaces = Vec::new();
         // Floors and ceilings, one per region.
         for (ri, r) in self.regions.iter().enumerate() {
             let corners = [[r.x[0], r.y[0]], [r.x[1], r.y[0]], [r.x[1], r.y[1]], [r.x[0], r.y[1]]];
@@ -359,8 +382,16 @@ impl Layout {
             let material = Material { base: [0.92, 0.92, 0.90], pattern: Pattern::Panels { size_m: 1.2 }, seed: 0 };
             surfaces.push(Surface::new(SurfaceKind::Ceiling, ceil, -Vec3::z(), Vec3::x(), material));
         }
+        surfaces
+    }
 
-        // Walls: the parts of each rectangle edge with no free space outside.
+    /// The walls (the parts of each rectangle edge with no free space
+    /// outside), and the ends of those running along x and along y.
+    fn wall_surfaces(&self, seed: u64) -> (Vec<Surface>, Vec<[f64; 2]>, Vec<[f64; 2]>) {
+        let mut surfaces = Vec::new();
+        let palette =
+            [[0.85, 0.82, 0.74], [0.72, 0.80, 0.86], [0.88, 0.78, 0.70], [0.78, 0.85, 0.75], [0.90, 0.88, 0.84]];
+        let pick = |k: u64| palette[(mix(seed ^ k) % palette.len() as u64) as usize];
         let mut breaks_x: Vec<f64> = self.regions.iter().flat_map(|r| r.x).collect();
         let mut breaks_y: Vec<f64> = self.regions.iter().flat_map(|r| r.y).collect();
         breaks_x.sort_by(f64::total_cmp);
@@ -419,16 +450,14 @@ impl Layout {
                 }
             }
         }
+        (surfaces, x_wall_ends, y_wall_ends)
+    }
 
-        // Wall corners: where a wall along x ends on a wall along y.
+    /// Wall corners (where a wall along x ends on a wall along y, at floor
+    /// and ceiling) and ramp ends.
+    fn wall_and_ramp_corners(&self, x_wall_ends: &[[f64; 2]], y_wall_ends: &[[f64; 2]]) -> Vec<Corner> {
         let mut corners: Vec<Corner> = Vec::new();
-        let push_corner = |corners: &mut Vec<Corner>, p: [f64; 3], kind: CornerKind| {
-            let dup = corners.iter().any(|c| (0..3).all(|k| (c.position[k] - p[k]).abs() < 1e-6));
-            if !dup {
-                corners.push(Corner { position: p, kind });
-            }
-        };
-        for p in &x_wall_ends {
+        for p in x_wall_ends {
             if y_wall_ends.iter().any(|q| (p[0] - q[0]).abs() < EPS && (p[1] - q[1]).abs() < EPS) {
                 let floor = self.floor_height(p[0], p[1]).unwrap_or(0.0);
                 let ceiling = self.ceiling_height(p[0], p[1]).unwrap_or(self.config.ceiling_height_m);
@@ -448,7 +477,11 @@ impl Layout {
                 }
             }
         }
-        // Box obstacles: four side faces and a top; eight corners.
+        corners
+    }
+
+    /// Each box obstacle's four side faces and top, and its eight corners.
+    fn box_surfaces_and_corners(&self, seed: u64, surfaces: &mut Vec<Surface>, corners: &mut Vec<Corner>) {
         for (bi, b) in self.obstacles.iter().enumerate() {
             let material = Material {
                 base: [0.62, 0.45, 0.28],
@@ -491,29 +524,18 @@ impl Layout {
             surfaces.push(Surface::new(SurfaceKind::BoxTop, top, Vec3::z(), Vec3::x(), material));
             for x in b.x {
                 for y in b.y {
-                    push_corner(&mut corners, [x, y, z1], CornerKind::BoxTop);
-                    push_corner(&mut corners, [x, y, z0], CornerKind::BoxBottom);
+                    push_corner(corners, [x, y, z1], CornerKind::BoxTop);
+                    push_corner(corners, [x, y, z0], CornerKind::BoxBottom);
                 }
             }
         }
+    }
+}
 
-        for (bi, b) in self.blocks.iter().enumerate() {
-            surfaces.extend(b.surfaces(mix(seed ^ (7000 + bi as u64))));
-            for c in b.corners() {
-                push_corner(&mut corners, c.position, c.kind);
-            }
-        }
-
-        // A light under the ceiling over the middle of each region.
-        self.lights = self
-            .regions
-            .iter()
-            .map(|r| {
-                let (x, y) = ((r.x[0] + r.x[1]) / 2.0, (r.y[0] + r.y[1]) / 2.0);
-                Light { position: [x, y, self.ceiling_of(r, x, y) - 0.1] }
-            })
-            .collect();
-        self.surfaces = surfaces;
-        self.corners = corners;
+/// Adds a corner unless one is already there.
+fn push_corner(corners: &mut Vec<Corner>, p: [f64; 3], kind: CornerKind) {
+    let dup = corners.iter().any(|c| (0..3).all(|k| (c.position[k] - p[k]).abs() < 1e-6));
+    if !dup {
+        corners.push(Corner { position: p, kind });
     }
 }
