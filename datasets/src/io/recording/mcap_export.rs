@@ -257,8 +257,16 @@ enum Event {
     Truth(usize),
 }
 
-/// Writes the sequence folder `dir` as the MCAP file `out`, atomically.
-pub fn write_sequence_mcap(dir: &Path, out: &Path) -> Result<usize> {
+/// What a sequence folder's files hold, and its messages in time order.
+struct SequenceLogs {
+    calib: Calibration,
+    imu_log: Vec<ImuSample>,
+    odom_log: Vec<OdometrySample>,
+    truth: Trajectory,
+    events: Vec<(i64, u8, Event)>,
+}
+
+fn read_sequence_logs(dir: &Path) -> Result<SequenceLogs> {
     let calib = read_calibration(&dir.join("calib.json"))?;
     let imu_log = read_imu(&dir.join("imu.csv"))?;
     let odom_log = read_odometry(&dir.join("odom.csv"))?;
@@ -275,9 +283,12 @@ pub fn write_sequence_mcap(dir: &Path, out: &Path) -> Result<usize> {
     events.extend(images.iter().map(|(t, p)| (ns(*t), 3, Event::Image(p.clone()))));
     events.extend(truth.stamps.iter().enumerate().map(|(k, t)| (ns(*t), 4, Event::Truth(k))));
     events.sort_by_key(|(t, order, _)| (*t, *order));
-    let start = events.first().map_or(0, |e| e.0);
+    Ok(SequenceLogs { calib, imu_log, odom_log, truth, events })
+}
 
-    // Written beside the target under a temporary name, renamed when whole.
+/// A temporary file beside `out` (what a killed export left there removed
+/// first), readable as an ordinary file once renamed.
+fn temporary_beside(out: &Path) -> Result<tempfile::NamedTempFile> {
     let parent = crate::atomic::folder_of(out);
     std::fs::create_dir_all(parent).map_err(|e| DataError::io(parent, e))?;
     // What a killed export of this bag left goes first.
@@ -288,7 +299,16 @@ pub fn write_sequence_mcap(dir: &Path, out: &Path) -> Result<usize> {
     // Temporary files are private (0600); the recording is an ordinary file.
     #[cfg(unix)]
     builder.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o644));
-    let tmp = builder.tempfile_in(parent).map_err(|e| DataError::io(parent, e))?;
+    builder.tempfile_in(parent).map_err(|e| DataError::io(parent, e))
+}
+
+/// Writes the sequence folder `dir` as the MCAP file `out`, atomically.
+pub fn write_sequence_mcap(dir: &Path, out: &Path) -> Result<usize> {
+    let SequenceLogs { calib, imu_log, odom_log, truth, events } = read_sequence_logs(dir)?;
+    let start = events.first().map_or(0, |e| e.0);
+
+    // Written beside the target under a temporary name, renamed when whole.
+    let tmp = temporary_beside(out)?;
     let file = tmp.as_file().try_clone().map_err(|e| DataError::io(out, e))?;
     let mcap_error = |e: mcap::McapError| DataError::invalid(out, format!("writing MCAP: {e}"));
     let mut writer = mcap::WriteOptions::new()
