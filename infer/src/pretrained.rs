@@ -178,7 +178,50 @@ pub fn load_trunk(
 ) -> Result<ImportReport, PretrainedError> {
     let tensors = read_tensors(path)?;
     let (conv_names, hidden_names) = names(config.backbone);
-    let convention = match convention {
+    let convention = resolve_convention(&tensors, convention);
+    // Check everything first, so that a bad file leaves the network untouched.
+    let (convs, hidden) = network.trunk_layers_mut();
+    let (planned, pruned) = plan_convs(&tensors, convs, &conv_names, convention, prune).map_err(|details| {
+        PretrainedError::Mismatch { path: path.to_path_buf(), backbone: config.backbone, width: config.width, details }
+    })?;
+
+    let device = convs[0].weight.device();
+    let mut loaded = Vec::new();
+    for (i, weight, bias) in planned {
+        let conv = &mut convs[i];
+        let shape = conv.weight.dims();
+        set_conv(conv, weight, bias, &device);
+        loaded.push((format!("features.{i}"), conv_names[i].clone()));
+        debug_assert_eq!(conv.weight.dims(), shape);
+    }
+    let mut skipped = Vec::new();
+    for ((layer, name), ours) in hidden.into_iter().zip(&hidden_names).zip(["hidden.0", "hidden.1"]) {
+        let (Some(w), Some(b)) = (tensors.get(&format!("{name}.weight")), tensors.get(&format!("{name}.bias"))) else {
+            continue;
+        };
+        if pruned {
+            skipped.push(format!("{name}: the trunk was pruned, so its inputs no longer match"));
+            continue;
+        }
+        let [d_in, d_out] = layer.weight.dims();
+        // PyTorch stores a linear layer's weight as [out, in]; Burn as [in, out].
+        if w.shape != [d_out, d_in] || b.shape != [d_out] {
+            skipped.push(format!("{name}.weight {:?} does not fit our {ours} [{d_out}, {d_in}]", w.shape));
+            continue;
+        }
+        set_linear(layer, &w.values, &b.values, d_in, d_out, &device);
+        loaded.push((ours.to_string(), name.clone()));
+    }
+    let used: std::collections::HashSet<&str> = loaded.iter().map(|(_, n)| n.as_str()).collect();
+    let unused =
+        tensors.keys().filter(|k| !used.contains(k.rsplit_once('.').map(|(l, _)| l).unwrap_or(k))).cloned().collect();
+    Ok(ImportReport { source: path.display().to_string(), convention, loaded, unused, skipped })
+}
+
+/// The input convention `convention` names, or (for `Auto`) the one the
+/// file's first layer says.
+fn resolve_convention(tensors: &BTreeMap<String, FileTensor>, convention: InputConvention) -> InputConvention {
+    match convention {
         InputConvention::Auto if tensors.contains_key("dsn1.weight") && tensors.contains_key("fuse.weight") => {
             InputConvention::Hed
         }
@@ -187,16 +230,25 @@ pub fn load_trunk(
         }
         InputConvention::Auto => InputConvention::Torchvision,
         c => c,
-    };
+    }
+}
 
-    // Check everything first, so that a bad file leaves the network untouched.
-    let (convs, hidden) = network.trunk_layers_mut();
+/// The weights and biases each of our convolutions takes from `tensors`
+/// (their filters chosen when `prune`), and whether any was pruned; or every
+/// problem found, with what the file holds.
+fn plan_convs(
+    tensors: &BTreeMap<String, FileTensor>,
+    convs: &[Conv2d],
+    conv_names: &[String],
+    convention: InputConvention,
+    prune: bool,
+) -> Result<(Vec<(usize, Vec<f32>, Vec<f32>)>, bool), String> {
     let mut problems = String::new();
     let mut planned: Vec<(usize, Vec<f32>, Vec<f32>)> = Vec::new();
     // The previous layer's output channels that were kept, when pruned.
     let mut kept: Option<Vec<usize>> = None;
     let mut pruned = false;
-    for (i, (conv, name)) in convs.iter().zip(&conv_names).enumerate() {
+    for (i, (conv, name)) in convs.iter().zip(conv_names).enumerate() {
         let ours = conv.weight.dims();
         let (w, b) = (tensors.get(&format!("{name}.weight")), tensors.get(&format!("{name}.bias")));
         let (Some(w), Some(b)) = (w, b) else {
@@ -255,45 +307,9 @@ pub fn load_trunk(
     if !problems.is_empty() {
         let keys: Vec<String> = tensors.iter().map(|(k, t)| format!("{k} {:?}", t.shape)).collect();
         let _ = write!(problems, "  the file holds: {}", keys.join(", "));
-        return Err(PretrainedError::Mismatch {
-            path: path.to_path_buf(),
-            backbone: config.backbone,
-            width: config.width,
-            details: problems,
-        });
+        return Err(problems);
     }
-
-    let device = convs[0].weight.device();
-    let mut loaded = Vec::new();
-    for (i, weight, bias) in planned {
-        let conv = &mut convs[i];
-        let shape = conv.weight.dims();
-        set_conv(conv, weight, bias, &device);
-        loaded.push((format!("features.{i}"), conv_names[i].clone()));
-        debug_assert_eq!(conv.weight.dims(), shape);
-    }
-    let mut skipped = Vec::new();
-    for ((layer, name), ours) in hidden.into_iter().zip(&hidden_names).zip(["hidden.0", "hidden.1"]) {
-        let (Some(w), Some(b)) = (tensors.get(&format!("{name}.weight")), tensors.get(&format!("{name}.bias"))) else {
-            continue;
-        };
-        if pruned {
-            skipped.push(format!("{name}: the trunk was pruned, so its inputs no longer match"));
-            continue;
-        }
-        let [d_in, d_out] = layer.weight.dims();
-        // PyTorch stores a linear layer's weight as [out, in]; Burn as [in, out].
-        if w.shape != [d_out, d_in] || b.shape != [d_out] {
-            skipped.push(format!("{name}.weight {:?} does not fit our {ours} [{d_out}, {d_in}]", w.shape));
-            continue;
-        }
-        set_linear(layer, &w.values, &b.values, d_in, d_out, &device);
-        loaded.push((ours.to_string(), name.clone()));
-    }
-    let used: std::collections::HashSet<&str> = loaded.iter().map(|(_, n)| n.as_str()).collect();
-    let unused =
-        tensors.keys().filter(|k| !used.contains(k.rsplit_once('.').map(|(l, _)| l).unwrap_or(k))).cloned().collect();
-    Ok(ImportReport { source: path.display().to_string(), convention, loaded, unused, skipped })
+    Ok((planned, pruned))
 }
 
 /// Writes the trunk convolutions and the two hidden layers of `network` as

@@ -50,8 +50,21 @@ fn the_shipped_detector_and_the_classic_corners_are_scored_on_york_urban_photos(
     let precision = |k: usize| methods[k]["precision"].as_f64().unwrap();
     assert!(precision(1) > precision(3) + 0.05, "shi-tomasi {} vs random {}", precision(1), precision(3));
 
-    // The same photos named by a COCO file (as `coco-from-points` writes
-    // its halves; paths relative to the file): the same report.
+    let p = p.to_str().unwrap();
+    a_coco_file_of_the_same_photos_gives_the_same_report(dir.path(), c, i, p, &report);
+    a_label_off_the_photo_is_named(dir.path(), c, i, p);
+    no_photo_and_a_bad_radius_are_refused(dir.path(), c, i, p);
+}
+
+/// The same photos named by a COCO file (as `coco-from-points` writes its
+/// halves; paths relative to the file): the same report.
+fn a_coco_file_of_the_same_photos_gives_the_same_report(
+    dir: &std::path::Path,
+    c: &str,
+    i: &str,
+    p: &str,
+    report: &serde_json::Value,
+) {
     let coco = serde_json::json!({
         "images": [
             {"id": 1, "file_name": "images/P1020826.jpg", "width": 640, "height": 480},
@@ -60,19 +73,23 @@ fn the_shipped_detector_and_the_classic_corners_are_scored_on_york_urban_photos(
         "annotations": [],
         "categories": [{"id": 1, "name": "corner"}],
     });
-    let coco_path = dir.path().join("test.json");
+    let coco_path = dir.join("test.json");
     std::fs::write(&coco_path, coco.to_string()).unwrap();
     let cp = coco_path.to_str().unwrap();
-    let out = infer(&["eval-points", "--checkpoint", c, "--images", cp, "--points", p.to_str().unwrap(), "--json"]);
+    let out = infer(&["eval-points", "--checkpoint", c, "--images", cp, "--points", p, "--json"]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    assert_eq!(serde_json::from_slice::<serde_json::Value>(&out.stdout).unwrap(), report);
+    assert_eq!(serde_json::from_slice::<serde_json::Value>(&out.stdout).unwrap(), *report);
     // A COCO image without a points file is named.
     let out = infer(&["eval-points", "--checkpoint", c, "--images", cp, "--points", i]);
     let message = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && message.contains("P1020826.csv"), "{message}");
+}
 
-    // A label off the photo (another image's, or another size's) is named, not counted as a miss.
-    let shifted = dir.path().join("shifted");
+/// A label off the photo (another image's, or another size's) is named,
+/// not counted as a miss.
+fn a_label_off_the_photo_is_named(dir: &std::path::Path, c: &str, i: &str, p: &str) {
+    let p = std::path::Path::new(p);
+    let shifted = dir.join("shifted");
     std::fs::create_dir(&shifted).unwrap();
     for name in ["P1020826", "P1020830"] {
         std::fs::copy(p.join(format!("{name}.csv")), shifted.join(format!("{name}.csv"))).unwrap();
@@ -87,22 +104,15 @@ fn the_shipped_detector_and_the_classic_corners_are_scored_on_york_urban_photos(
             && message.contains("(700.5, 20) lies outside the 640x480"),
         "{message}"
     );
+}
 
-    // No labelled photo, a bad radius: named refusals.
-    let empty = dir.path().join("empty");
+/// No labelled photo, a bad radius: named refusals.
+fn no_photo_and_a_bad_radius_are_refused(dir: &std::path::Path, c: &str, i: &str, p: &str) {
+    let empty = dir.join("empty");
     std::fs::create_dir(&empty).unwrap();
-    let out = infer(&[
-        "eval-points",
-        "--checkpoint",
-        c,
-        "--images",
-        empty.to_str().unwrap(),
-        "--points",
-        p.to_str().unwrap(),
-    ]);
+    let out = infer(&["eval-points", "--checkpoint", c, "--images", empty.to_str().unwrap(), "--points", p]);
     let message = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && message.contains("no photograph in") && message.contains("empty"), "{message}");
-    let out =
-        infer(&["eval-points", "--checkpoint", c, "--images", i, "--points", p.to_str().unwrap(), "--radius", "-1"]);
+    let out = infer(&["eval-points", "--checkpoint", c, "--images", i, "--points", p, "--radius", "-1"]);
     assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("--radius"));
 }

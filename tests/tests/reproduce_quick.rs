@@ -26,6 +26,14 @@ fn quick_reproduction_writes_a_sane_report_and_resumes() {
         .map(|t| (t.family, matches!(&t.start, train::Start::Detector(p) if p.is_dir())))
         .collect();
     assert_eq!(starts, [(Backbone::Vgg16, false), (Backbone::Alexnet, false), (Backbone::FasterRcnn, true)]);
+    checkpoints_score_what_was_recorded(out, &plan, &results);
+    let fused_rows = trajectories_give_the_recorded_errors(out, &results);
+    report_quotes_the_runs(out, &fused_rows);
+    resumes_only_what_changed(out, &plan, &results);
+}
+
+/// Each run's AP@0.5 is what its written checkpoint scores on the test split.
+fn checkpoints_score_what_was_recorded(out: &std::path::Path, plan: &Plan, results: &reproduce::Results) {
     assert_eq!(results.runs.len(), 3);
     let test_set = out.join("data/detection/test.json");
     for r in &results.runs {
@@ -42,6 +50,14 @@ fn quick_reproduction_writes_a_sane_report_and_resumes() {
             again.ap50
         );
     }
+}
+
+/// Each backbone's fused errors are those of its trajectory file against the
+/// ground truth, and below odometry/IMU's; returns the "all" rows.
+fn trajectories_give_the_recorded_errors(
+    out: &std::path::Path,
+    results: &reproduce::Results,
+) -> Vec<(Backbone, reproduce::experiment::ErrorRow)> {
     assert_eq!(results.localization.len(), 3);
     let truth = datasets::io::formats::read_tum(&out.join("data/sequence/groundtruth.txt")).unwrap();
     let mut fused_rows = Vec::new();
@@ -70,6 +86,12 @@ fn quick_reproduction_writes_a_sane_report_and_resumes() {
         }
         fused_rows.push((l.backbone, fused));
     }
+    fused_rows
+}
+
+/// The report has its tables and figures, the paper's numbers beside ours,
+/// and each backbone's own errors.
+fn report_quotes_the_runs(out: &std::path::Path, fused_rows: &[(Backbone, reproduce::experiment::ErrorRow)]) {
     for file in ["report.md", "plan.json", "compare/losses.png", "compare/losses.svg", "compare/table.csv"] {
         assert!(out.join(file).is_file(), "{file} missing");
     }
@@ -83,14 +105,18 @@ fn quick_reproduction_writes_a_sane_report_and_resumes() {
     }
     assert!(!report.contains("NaN") && !report.contains("not run"), "{report}");
     // Table 2 quotes each backbone's own errors.
-    for (backbone, e) in &fused_rows {
+    for (backbone, e) in fused_rows {
         let row = format!(
             "| fused, {backbone} | all | {} | {:.4} | {:.4} | {:.4} | {:.4} |",
             e.matched, e.rmse_x, e.rmse_y, e.rmse_z, e.ate_rmse
         );
         assert!(report.contains(&row), "report lacks {row}:\n{report}");
     }
+}
 
+/// A second invocation reuses every stage; one more alexnet epoch redoes
+/// only alexnet's training and localization.
+fn resumes_only_what_changed(out: &std::path::Path, plan: &Plan, results: &reproduce::Results) {
     // Run again: nothing to do but the report.
     let again = reproduce::reproduce(out, &plan, false).unwrap();
     assert_eq!(again.reused.len(), 1 + 3 + 3 + 3, "{:?}", again.reused);
