@@ -133,7 +133,32 @@ pub fn generated() -> Vec<(Target, Vec<u8>)> {
         Target::Trajectory,
         b"#timestamp,p_x,p_y,p_z,q_w,q_x,q_y,q_z\n1403715273262142976,0.1,0.2,0.3,1,0,0,0\n1403715273267142912,0.1,0.2,0.31,1,0,0,0\n".to_vec(),
     ));
-    let odometry: Vec<_> = (0..5)
+    let odometry = small_odometry();
+    out.push((Target::SensorCsv, via_file("odom.csv", |p| formats::write_odometry(p, &odometry))));
+    let imu = small_imu();
+    out.push((Target::SensorCsv, via_file("imu.csv", |p| formats::write_imu(p, &imu))));
+    let calib = small_calibration(&trajectory);
+    out.push((Target::Calib, via_file("calib.json", |p| formats::write_calibration(p, &calib))));
+    let coco = small_coco();
+    out.push((Target::Coco, via_file("labels.json", |p| formats::write_coco(p, &coco))));
+    for backbone in [infer::Backbone::FasterRcnn, infer::Backbone::Vgg16, infer::Backbone::Alexnet] {
+        let config = infer::DetectorConfig::new(backbone, 0.25);
+        out.push((Target::CheckpointConfig, serde_json::to_vec_pretty(&config).expect("a config serialises")));
+    }
+    out.extend(rosbag2_metadata_seeds().into_iter().map(|m| (Target::Rosbag2Metadata, m)));
+    let messages = message_seeds(&cloud, &calib, &imu[1], &odometry[1], &trajectory);
+    out.push((Target::McapContent, uncompressed_mcap(&messages)));
+    for (kind, data) in messages {
+        let mut input = vec![message_selector(kind, Encoding::Cdr)];
+        input.extend(data);
+        out.push((Target::RosMessage, input));
+    }
+    out.push((Target::Map, map_folder()));
+    out
+}
+
+fn small_odometry() -> Vec<formats::OdometrySample> {
+    (0..5)
         .map(|k| formats::OdometrySample {
             timestamp: k as f64 * 0.02,
             x: k as f64 * 0.01,
@@ -142,19 +167,25 @@ pub fn generated() -> Vec<(Target, Vec<u8>)> {
             v: 0.5,
             omega: 0.0,
         })
-        .collect();
-    out.push((Target::SensorCsv, via_file("odom.csv", |p| formats::write_odometry(p, &odometry))));
-    let imu: Vec<_> = (0..5)
+        .collect()
+}
+
+fn small_imu() -> Vec<formats::ImuSample> {
+    (0..5)
         .map(|k| formats::ImuSample { timestamp: k as f64 * 0.005, accel: [0.1, 0.0, 9.81], gyro: [0.0, 0.0, 0.01] })
-        .collect();
-    out.push((Target::SensorCsv, via_file("imu.csv", |p| formats::write_imu(p, &imu))));
-    let calib = formats::Calibration {
+        .collect()
+}
+
+fn small_calibration(trajectory: &formats::Trajectory) -> formats::Calibration {
+    formats::Calibration {
         camera: datasets::camera::PinholeCamera { width: 640, height: 480, fx: 525.0, fy: 525.0, cx: 319.5, cy: 239.5 },
         camera_from_lidar: trajectory.poses[2],
         robot_from_lidar: trajectory.poses[1],
-    };
-    out.push((Target::Calib, via_file("calib.json", |p| formats::write_calibration(p, &calib))));
-    let coco = formats::CocoDataset {
+    }
+}
+
+fn small_coco() -> formats::CocoDataset {
+    formats::CocoDataset {
         info: None,
         images: vec![formats::CocoImage { id: 1, file_name: "0000000001.500000.png".into(), width: 640, height: 480 }],
         annotations: vec![formats::CocoAnnotation {
@@ -168,32 +199,36 @@ pub fn generated() -> Vec<(Target, Vec<u8>)> {
             point: Some([108.0, 128.0]),
         }],
         categories: vec![formats::CocoCategory { id: 1, name: "corner".into(), supercategory: None }],
-    };
-    out.push((Target::Coco, via_file("labels.json", |p| formats::write_coco(p, &coco))));
-    for backbone in [infer::Backbone::FasterRcnn, infer::Backbone::Vgg16, infer::Backbone::Alexnet] {
-        let config = infer::DetectorConfig::new(backbone, 0.25);
-        out.push((Target::CheckpointConfig, serde_json::to_vec_pretty(&config).expect("a config serialises")));
     }
-    out.push((
-        Target::Rosbag2Metadata,
+}
+
+/// metadata.yaml files: a plain one, anchors and aliases that expand a
+/// little, and a billion-node one the reader must refuse before expanding it.
+fn rosbag2_metadata_seeds() -> Vec<Vec<u8>> {
+    vec![
         b"rosbag2_bagfile_information:\n  version: 5\n  storage_identifier: mcap\n  relative_file_paths:\n    - bag_0.mcap\n  compression_format: zstd\n  compression_mode: FILE\n".to_vec(),
-    ));
-    // Anchors and aliases: a small document that expands a little, and a
-    // billion-node one the reader must refuse before expanding it.
-    out.push((
-        Target::Rosbag2Metadata,
         b"rosbag2_bagfile_information:\n  version: 5\n  storage_identifier: &s sqlite3\n  relative_file_paths: &f\n    - bag_0.db3\n  files: *f\n  custom: [*s, *s, *f]\n".to_vec(),
-    ));
-    out.push((Target::Rosbag2Metadata, alias_bomb(9, 10).into_bytes()));
-    let messages = [
-        (datasets::io::recording::MessageKind::PointCloud2, mcap_export::point_cloud2(1_500_000_000, "lidar", &cloud)),
+        alias_bomb(9, 10).into_bytes(),
+    ]
+}
+
+/// One message of every kind the readers decode, as CDR.
+fn message_seeds(
+    cloud: &formats::PointCloud,
+    calib: &formats::Calibration,
+    imu: &formats::ImuSample,
+    odometry: &formats::OdometrySample,
+    trajectory: &formats::Trajectory,
+) -> [(datasets::io::recording::MessageKind, Vec<u8>); 7] {
+    [
+        (datasets::io::recording::MessageKind::PointCloud2, mcap_export::point_cloud2(1_500_000_000, "lidar", cloud)),
         (
             datasets::io::recording::MessageKind::CompressedImage,
             mcap_export::compressed_image(1_500_000_000, "camera", "png", &tiny_png()),
         ),
-        (datasets::io::recording::MessageKind::CameraInfo, mcap_export::camera_info(1_500_000_000, "camera", &calib)),
-        (datasets::io::recording::MessageKind::Imu, mcap_export::imu(&imu[1], "imu")),
-        (datasets::io::recording::MessageKind::Odometry, mcap_export::odometry(&odometry[1], "odom", "base_link")),
+        (datasets::io::recording::MessageKind::CameraInfo, mcap_export::camera_info(1_500_000_000, "camera", calib)),
+        (datasets::io::recording::MessageKind::Imu, mcap_export::imu(imu, "imu")),
+        (datasets::io::recording::MessageKind::Odometry, mcap_export::odometry(odometry, "odom", "base_link")),
         (
             datasets::io::recording::MessageKind::TfMessage,
             mcap_export::tf_message(&[(1_500_000_000, "base_link", "lidar", trajectory.poses[3])]),
@@ -202,15 +237,7 @@ pub fn generated() -> Vec<(Target, Vec<u8>)> {
             datasets::io::recording::MessageKind::PoseStamped,
             mcap_export::pose_stamped(1_500_000_000, "map", &trajectory.poses[4]),
         ),
-    ];
-    out.push((Target::McapContent, uncompressed_mcap(&messages)));
-    for (kind, data) in messages {
-        let mut input = vec![message_selector(kind, Encoding::Cdr)];
-        input.extend(data);
-        out.push((Target::RosMessage, input));
-    }
-    out.push((Target::Map, map_folder()));
-    out
+    ]
 }
 
 /// A metadata.yaml whose aliases nest `levels` deep, each `width` wide:

@@ -250,9 +250,8 @@ fn read_map_points(dir: &Path, points_count: usize, corners: usize) -> datasets:
 mod tests {
     use super::*;
 
-    #[test]
-    fn a_written_map_reads_back_and_a_damaged_one_is_named() {
-        let dir = tempfile::tempdir().unwrap();
+    /// A map of two points, two keyframes and a wall axis.
+    fn saved_map() -> (SavedMap, Pose3) {
         let points = vec![
             MapPoint { position: Vec3::new(1.0, 2.0, 3.0), normal: Vec3::z() },
             MapPoint { position: Vec3::new(-0.5, 0.25, 0.0), normal: -Vec3::x() },
@@ -267,6 +266,27 @@ mod tests {
             keyframes: vec![Pose3::identity(), turned],
             truth_origin: Some(turned),
         };
+        (map, turned)
+    }
+
+    /// `map.json` of `dir` rewritten as a version-1 map (no keyframes, no
+    /// origin, no wall axis); returns its JSON.
+    fn as_version_one(dir: &std::path::Path) -> serde_json::Value {
+        let json = dir.join("map.json");
+        let mut old: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+        old["format"] = "corner-fusion map 1".into();
+        old.as_object_mut().unwrap().remove("keyframes");
+        old.as_object_mut().unwrap().remove("truth_origin");
+        old.as_object_mut().unwrap().remove("wall_axis_deg");
+        std::fs::write(&json, old.to_string()).unwrap();
+        old
+    }
+
+    #[test]
+    fn a_written_map_reads_back_and_a_version_one_map_still_reads() {
+        let dir = tempfile::tempdir().unwrap();
+        let (map, turned) = saved_map();
+        let points = map.points.clone();
         write_map(dir.path(), &map).unwrap();
         let back = read_map(dir.path()).unwrap();
         assert_eq!(back.points, points);
@@ -275,15 +295,18 @@ mod tests {
         assert!(back.truth_origin.unwrap().rotation.angle_to(&turned.rotation) < 1e-12);
         assert!((back.wall_axis.unwrap() - 0.3).abs() < 1e-12);
         // A version-1 map (no keyframes, no origin) still reads.
-        let json = dir.path().join("map.json");
-        let mut old: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-        old["format"] = "corner-fusion map 1".into();
-        old.as_object_mut().unwrap().remove("keyframes");
-        old.as_object_mut().unwrap().remove("truth_origin");
-        old.as_object_mut().unwrap().remove("wall_axis_deg");
-        std::fs::write(&json, old.to_string()).unwrap();
+        as_version_one(dir.path());
         let v1 = read_map(dir.path()).unwrap();
         assert!(v1.keyframes.is_empty() && v1.truth_origin.is_none() && v1.wall_axis.is_none() && v1.points == points);
+    }
+
+    #[test]
+    fn damaged_fields_of_map_json_are_named() {
+        let dir = tempfile::tempdir().unwrap();
+        let (map, _) = saved_map();
+        write_map(dir.path(), &map).unwrap();
+        let json = dir.path().join("map.json");
+        let mut old = as_version_one(dir.path());
         // A keyframe that is no pose is named.
         old["keyframes"] = serde_json::json!([[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 2.0]]);
         std::fs::write(&json, old.to_string()).unwrap();
@@ -332,6 +355,12 @@ mod tests {
             let m = read_map(dir.path()).unwrap_err().to_string();
             assert!(m.contains("corner 0") && m.contains("observations used"), "used {used}: {m}");
         }
+    }
+
+    #[test]
+    fn a_torn_map_ply_and_a_foreign_map_json_are_named() {
+        let dir = tempfile::tempdir().unwrap();
+        let (map, _) = saved_map();
         write_map(dir.path(), &map).unwrap();
         let ply = dir.path().join("map.ply");
         let bytes = std::fs::read(&ply).unwrap();
