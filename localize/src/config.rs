@@ -89,6 +89,7 @@ impl LocalizeConfig {
             (InvalidSetting::positive, InvalidSetting::non_negative, InvalidSetting::count);
         non_negative("voxel.size_m", self.voxel.size_m, 5.0)?;
         count("normals.neighbours", self.normals.neighbours, 3, 1000)?;
+        self.normals.organised.validate().map_err(|e| e.within("normals.organised"))?;
         let p = &self.planes;
         positive("planes.angle_bin_deg", p.angle_bin_deg, 90.0)?;
         positive("planes.distance_bin_m", p.distance_bin_m, 10.0)?;

@@ -199,6 +199,8 @@ impl RunState<'_> {
         let times = FrameMotion::times_for(stamp, image_stamp, cloud.as_ref().ok().filter(|_| config.sync.deskew));
         let motion = FrameMotion::sample(&mut self.fused, &mut self.replay, stamp, &times);
         self.replay_reference.advance(&mut self.dead_reckoning, stamp);
+        // The sweep's rows and columns, while its points still lie on their beams.
+        let sweep_image = cloud.as_ref().ok().filter(|c| c.times.is_some()).and_then(|c| self.localizer.sweep_image(c));
         if config.sync.deskew
             && let Ok(c) = &mut cloud
         {
@@ -221,7 +223,7 @@ impl RunState<'_> {
         // run them side by side, so each fills the cores the other leaves idle.
         let localizer = &self.localizer;
         let (geometry, (pixels, detect_ms)) = rayon::join(
-            || localizer.frame_geometry(cloud),
+            || localizer.frame_geometry(cloud, sweep_image),
             || match (&image, &mut *source) {
                 (Err(why), _) => (Err(why.clone()), 0.0),
                 (Ok(image), source) => source.corners(&name, Some(image)),

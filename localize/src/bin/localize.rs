@@ -90,6 +90,10 @@ struct BenchArgs {
     /// The detector timed (skipped when its checkpoint folder is missing).
     #[command(flatten)]
     detector: DetectorArgs,
+    /// Also compare the organised and the exact normals on this cloud (PCD,
+    /// PLY or KITTI .bin, seen from its viewpoint); repeat for more.
+    #[arg(long = "cloud", value_name = "FILE")]
+    clouds: Vec<PathBuf>,
     #[arg(long)]
     json: bool,
 }
@@ -709,7 +713,13 @@ fn bench(args: &BenchArgs) -> Result<()> {
     } else {
         None
     };
-    let report = localize::evaluation::stage_bench::stage_bench(detector.as_ref(), args.frames)?;
+    let mut clouds = Vec::new();
+    for path in &args.clouds {
+        let cloud = datasets::io::formats::read_cloud(path, datasets::io::formats::NonFinite::Drop)?;
+        let name = path.file_name().map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned());
+        clouds.push((name, cloud.points, cloud.viewpoint.translation.vector));
+    }
+    let report = localize::evaluation::stage_bench::stage_bench(detector.as_ref(), args.frames, &clouds)?;
     if args.json {
         println!("{}", serde_json::to_string(&report)?);
     } else {

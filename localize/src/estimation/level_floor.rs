@@ -256,6 +256,7 @@ mod tests {
             points,
             planes: PlaneSet { planes, labels },
             corners: Default::default(),
+            organised: None,
             normals_ms: 0.0,
             planes_ms: 0.0,
             corners_ms: 0.0,

@@ -24,6 +24,7 @@ use crate::estimation::relocalize::{Placement, RelocalizeConfig, relocalize};
 use crate::estimation::scan_match::{ScanFix, ScanMatcher, ScanPoints};
 use crate::input::frame_fault::FrameFault;
 use crate::scan::geometry::{Geometry, GeometryStages};
+use crate::scan::range_image::RangeImage;
 
 /// How a frame's pose was obtained, written to the per-frame log.
 #[derive(Debug, Clone, PartialEq)]
@@ -263,6 +264,7 @@ impl Localizer {
     pub fn frame_geometry(
         &self,
         cloud: std::result::Result<PointCloud, FrameFault>,
+        sweep_image: Option<(RangeImage, f64)>,
     ) -> std::result::Result<Geometry, FrameFault> {
         let cloud = match cloud {
             Ok(c) if c.is_empty() => return Err(FrameFault::NoFinitePoints),
@@ -270,7 +272,14 @@ impl Localizer {
             Err(why) => return Err(why),
         };
         let sensor = cloud.viewpoint.translation.vector;
-        self.geometry.run(&cloud.points, &sensor).map_err(|e| FrameFault::Geometry(e.to_string()))
+        let image = sweep_image.or_else(|| self.geometry.range_image(&cloud.points, &sensor));
+        self.geometry.run_on(&cloud.points, &sensor, image).map_err(|e| FrameFault::Geometry(e.to_string()))
+    }
+
+    /// The rows and columns of a sweep as it came (before deskewing), for
+    /// `frame_geometry`.
+    pub fn sweep_image(&self, cloud: &PointCloud) -> Option<(RangeImage, f64)> {
+        self.geometry.range_image(&cloud.points, &cloud.viewpoint.translation.vector)
     }
 
     /// Processes one frame whose filter has been advanced to its time:

@@ -3,6 +3,7 @@
 pub mod benchmark;
 pub mod eval;
 pub mod levels;
+pub mod normal_paths;
 pub mod plot;
 pub mod similarity;
 pub mod stage_bench;

@@ -1,11 +1,14 @@
 //! `localize bench`: milliseconds per frame of each geometry stage and of
-//! the detector beside it, on M8-like scans and dense 64-beam ones of the
-//! built-in world, and the decoding of a recording's messages. Speed is
-//! measured here, never in tests.
+//! the detector beside it, on M8-like scans, dense 64-beam ones and 640 x 480
+//! depth images of the built-in world, with the organised normals and with
+//! the exact ones, what each path finds on them (and on clouds a user
+//! passes), and the decoding of a recording's messages. Speed is measured
+//! here, never in tests.
 
 use serde::Serialize;
 
 use crate::config::LocalizeConfig;
+use crate::evaluation::normal_paths::{PathComparison, compare_paths};
 
 use crate::error::{LocalizeError, Result};
 
@@ -37,11 +40,20 @@ pub struct DecodeTimes {
 #[derive(Debug, Clone, Serialize)]
 pub struct StageBench {
     pub frames: Vec<StageRow>,
+    /// The organised normals against the exact ones: per scan kind, its
+    /// first scan; then each cloud passed in.
+    pub paths: Vec<(String, PathComparison)>,
     pub decode: DecodeTimes,
 }
 
-/// Times `frames` scans of each kind (and the detector, when given).
-pub fn stage_bench(detector: Option<&infer::detector::Detector>, frames: usize) -> Result<StageBench> {
+/// Times `frames` scans of each kind (and the detector, when given), and
+/// compares the two normal paths on them and on `clouds` (name, points,
+/// sensor position).
+pub fn stage_bench(
+    detector: Option<&infer::detector::Detector>,
+    frames: usize,
+    clouds: &[(String, Vec<nalgebra::Point3<f32>>, datasets::math::Vec3)],
+) -> Result<StageBench> {
     let world = datasets::simulator::world::World::new(&Default::default(), 7);
     let m8 = datasets::simulator::world::lidar::LidarConfig::default();
     // A 64-beam scanner at 0.2 degrees: about 100k points a turn.
@@ -64,49 +76,109 @@ pub fn stage_bench(detector: Option<&infer::detector::Detector>, frames: usize) 
         }
         start.elapsed().as_secs_f64() * 1e3 / frames.max(1) as f64
     });
-    let plain = LocalizeConfig::default();
-    let thinned = |size_m: f64| {
-        let mut c = LocalizeConfig::default();
-        c.voxel.size_m = size_m;
-        c
-    };
-    let (thin5, thin10) = (thinned(0.05), thinned(0.10));
-    // A thinned dense cloud is near-isotropic: k need not reach across
-    // sparse rings as on an 8-beam scan.
-    let mut thin10_k20 = thinned(0.10);
-    thin10_k20.normals.neighbours = 20;
-    let scans = [
-        ("m8", &m8, &plain),
-        ("dense", &dense, &plain),
-        ("dense-5cm", &dense, &thin5),
-        ("dense-10cm", &dense, &thin10),
-        ("dense-10cm-k20", &dense, &thin10_k20),
+    let configs = BenchConfigs::new();
+    let m8_scans = bench_scans(&world, &m8, frames)?;
+    let dense_scans = bench_scans(&world, &dense, frames)?;
+    let depth_full = bench_depth_images(&world, frames, 1)?;
+    let depth_default = bench_depth_images(&world, frames, DEPTH_STRIDE)?;
+    let c = &configs;
+    let kinds = [
+        ("m8", &m8_scans, &c.plain),
+        ("m8-organised", &m8_scans, &c.organised),
+        ("dense", &dense_scans, &c.plain),
+        ("dense-organised", &dense_scans, &c.organised),
+        ("dense-organised-25", &dense_scans, &c.organised_fast),
+        ("dense-5cm", &dense_scans, &c.thin5),
+        ("dense-10cm", &dense_scans, &c.thin10),
+        ("dense-10cm-k20", &dense_scans, &c.thin10_k20),
+        ("depth", &depth_full, &c.plain),
+        ("depth-organised", &depth_full, &c.organised),
+        ("depth-stride4", &depth_default, &c.plain),
+        ("depth-stride4-organised", &depth_default, &c.organised),
     ];
     let mut rows = Vec::new();
-    for (scan, lidar, config) in scans {
-        let clouds = bench_scans(&world, lidar, frames)?;
-        let stages = config.geometry_stages()?;
-        let [normals_ms, planes_ms, corners_ms] = bench_geometry(&stages, &clouds)?;
-        let geometry_ms = normals_ms + planes_ms + corners_ms;
-        let total_ms = match detector {
-            Some(detector) => bench_frame(&stages, &clouds, detector, &image)?,
-            None => geometry_ms,
-        };
-        let points = clouds.iter().map(|c| c.len() as f64).sum::<f64>() / clouds.len().max(1) as f64;
-        rows.push(StageRow {
-            scan,
-            points: points.round(),
-            normals_ms,
-            planes_ms,
-            corners_ms,
-            geometry_ms,
-            detector_ms,
-            sequential_ms: geometry_ms + detector_ms.unwrap_or(0.0),
-            total_ms,
-        });
+    for (scan, clouds, config) in kinds {
+        rows.push(stage_row(scan, clouds, config, detector, detector_ms, &image)?);
     }
-    Ok(StageBench { frames: rows, decode: bench_decoding(frames.max(10)) })
+    let origin = datasets::math::Vec3::zeros();
+    let mut paths = Vec::new();
+    for (name, scans) in
+        [("m8", &m8_scans), ("dense", &dense_scans), ("depth", &depth_full), ("depth-stride4", &depth_default)]
+    {
+        paths.push((name.to_string(), compare_paths(&scans[0].points, &origin, &c.organised, 3)?));
+    }
+    for (name, points, sensor) in clouds {
+        paths.push((name.clone(), compare_paths(points, sensor, &c.organised, 3)?));
+    }
+    Ok(StageBench { frames: rows, paths, decode: bench_decoding(frames.max(10)) })
 }
+
+/// The settings the stage rows compare.
+struct BenchConfigs {
+    plain: LocalizeConfig,
+    /// The organised normals, wherever a scan has rows and columns.
+    organised: LocalizeConfig,
+    /// ...reading 25 cells a point over 2 degrees, all that pass the gate.
+    organised_fast: LocalizeConfig,
+    thin5: LocalizeConfig,
+    thin10: LocalizeConfig,
+    thin10_k20: LocalizeConfig,
+}
+
+impl BenchConfigs {
+    fn new() -> Self {
+        let plain = LocalizeConfig::default();
+        let mut organised = plain.clone();
+        organised.normals.organised.enabled = true;
+        organised.normals.organised.max_row_pitch_deg = 90.0;
+        let mut organised_fast = organised.clone();
+        organised_fast.normals.organised.samples = 25;
+        organised_fast.normals.organised.window_deg = 2.0;
+        let thinned = |size_m: f64| {
+            let mut c = LocalizeConfig::default();
+            c.voxel.size_m = size_m;
+            c
+        };
+        // A thinned dense cloud is near-isotropic: k need not reach across
+        // sparse rings as on an 8-beam scan.
+        let mut thin10_k20 = thinned(0.10);
+        thin10_k20.normals.neighbours = 20;
+        Self { plain, organised, organised_fast, thin5: thinned(0.05), thin10: thinned(0.10), thin10_k20 }
+    }
+}
+
+/// One scan kind's row: each stage alone, then the frame with the detector.
+fn stage_row(
+    scan: &'static str,
+    clouds: &[datasets::io::formats::PointCloud],
+    config: &LocalizeConfig,
+    detector: Option<&infer::detector::Detector>,
+    detector_ms: Option<f64>,
+    image: &image::DynamicImage,
+) -> Result<StageRow> {
+    let stages = config.geometry_stages()?;
+    let [normals_ms, planes_ms, corners_ms] = bench_geometry(&stages, clouds)?;
+    let geometry_ms = normals_ms + planes_ms + corners_ms;
+    let total_ms = match detector {
+        Some(detector) => bench_frame(&stages, clouds, detector, image)?,
+        None => geometry_ms,
+    };
+    let points = clouds.iter().map(|c| c.len() as f64).sum::<f64>() / clouds.len().max(1) as f64;
+    Ok(StageRow {
+        scan,
+        points: points.round(),
+        normals_ms,
+        planes_ms,
+        corners_ms,
+        geometry_ms,
+        detector_ms,
+        sequential_ms: geometry_ms + detector_ms.unwrap_or(0.0),
+        total_ms,
+    })
+}
+
+/// The depth images' pixel stride that `localize run` lifts by default.
+const DEPTH_STRIDE: usize = 4;
 
 impl StageBench {
     /// The table `localize bench` prints.
@@ -132,6 +204,10 @@ impl StageBench {
             "(points: as scanned; dense-5cm and dense-10cm thin them to 5 and 10 cm voxels before the normals, inside the normals time; k20: 20 neighbours per normal instead of 40)\n",
         );
         out.push_str("(fusion and pose take well under 1 ms a frame; see frames.csv of a run)\n");
+        out.push_str(
+            "(-organised: normals on the range image (normals.organised), -25: reading 25 cells a point over 2 degrees; depth: 640 x 480 depth images, every pixel; stride4: every 4th, as `localize run` lifts them)\n",
+        );
+        out.push_str(&paths_table(&self.paths));
         let d = &self.decode;
         let _ = writeln!(
             out,
@@ -140,6 +216,88 @@ impl StageBench {
         );
         out
     }
+}
+
+/// The organised normals against the exact ones, one line per cloud.
+pub fn paths_table(paths: &[(String, PathComparison)]) -> String {
+    use std::fmt::Write as _;
+    let mut out =
+        String::from("\norganised normals against the exact ones (planes and 3D corners matched one to one):\n");
+    let _ = writeln!(
+        out,
+        "{:<18} {:>8} {:>10} {:>11} {:>10} {:>14} {:>16} {:>12} {:>16}",
+        "cloud",
+        "points",
+        "image",
+        "exact ms",
+        "range ms",
+        "planes e/o/=",
+        "plane deg max/med",
+        "offset mm",
+        "corners e/o/= mm max/med"
+    );
+    for (name, p) in paths {
+        let _ = writeln!(
+            out,
+            "{:<18} {:>8} {:>10} {:>11.1} {:>10.1} {:>14} {:>8.2} / {:<6.2} {:>12.1} {:>8} {:>6.1} / {:.1}",
+            name,
+            p.points,
+            p.organised.as_deref().unwrap_or("none"),
+            p.exact_normals_ms,
+            p.organised_normals_ms,
+            format!("{}/{}/{}", p.exact_planes, p.organised_planes, p.matched_planes),
+            p.plane_max_deg,
+            p.plane_median_deg,
+            p.plane_max_offset_mm,
+            format!("{}/{}/{}", p.exact_corners, p.organised_corners, p.matched_corners),
+            p.corner_max_mm,
+            p.corner_median_mm,
+        );
+    }
+    out
+}
+
+/// 640 x 480 depth images (Kinect intrinsics, depth noise growing with the
+/// square of the depth) from the RGB-D camera's mount along the built-in
+/// route, lifted as `localize run` lifts them: every `stride`-th pixel,
+/// 0.2 to 4 m, in the camera's body frame (x forward, y left, z up).
+fn bench_depth_images(
+    world: &datasets::simulator::world::World,
+    frames: usize,
+    stride: usize,
+) -> Result<Vec<datasets::io::formats::PointCloud>> {
+    use datasets::math::Vec3;
+    use datasets::seed::mix;
+    let route = datasets::simulator::world::route::Route::new(&world.layout.route, 1.2);
+    let camera = datasets::camera::PinholeCamera::kinect();
+    let mount = nalgebra::Isometry3::translation(0.12, 0.0, 0.45);
+    (0..frames)
+        .map(|k| {
+            let s = route.length() * (k as f64 + 0.5) / frames as f64;
+            let (xy, heading) = route.at(s);
+            let robot = datasets::simulator::world::route::pose_on_floor(&world.layout, xy, heading)
+                .ok_or_else(|| LocalizeError::Recording("the benchmark route left the free space".into()))?;
+            let world_from_body = robot * mount;
+            let origin = nalgebra::Point3::from(world_from_body.translation.vector);
+            let mut points = Vec::new();
+            for v in (0..480).step_by(stride) {
+                for u in (0..640).step_by(stride) {
+                    // The ray of pixel (u, v) with depth 1 along x.
+                    let ray = Vec3::new(1.0, -(u as f64 - camera.cx) / camera.fx, -(v as f64 - camera.cy) / camera.fy);
+                    let dir = world_from_body.rotation * ray.normalize();
+                    let Some(hit) = world.cast(&origin, &dir, 0.05, 10.0) else { continue };
+                    let depth = hit.t / ray.norm();
+                    let key = mix(k as u64 ^ mix((v * 640 + u) as u64));
+                    let gaussian = ((mix(key) >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 3.46;
+                    let depth = depth + (0.0012 + 0.0019 * (depth - 0.4).powi(2)) * gaussian;
+                    if (0.2..=4.0).contains(&depth) {
+                        points.push((ray * depth).cast::<f32>().into());
+                    }
+                }
+            }
+            Ok(datasets::io::formats::PointCloud::new(points, None))
+        })
+        .collect()
 }
 
 fn bench_scans(

@@ -9,6 +9,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{LocalizeError, Result};
+use crate::scan::organised_normals::OrganisedNormalConfig;
 use crate::scan::scan_grid::{NeighbourScratch, ScanGrid};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -19,11 +20,13 @@ pub struct NormalConfig {
     /// (about 2 x elevation step / azimuth step points), or the neighbourhood
     /// is a line and its smallest eigenvector meaningless.
     pub neighbours: usize,
+    /// Normals from the range image where the scan has one.
+    pub organised: OrganisedNormalConfig,
 }
 
 impl Default for NormalConfig {
     fn default() -> Self {
-        Self { neighbours: 40 }
+        Self { neighbours: 40, organised: OrganisedNormalConfig::default() }
     }
 }
 
@@ -50,7 +53,12 @@ impl NormalEstimator {
             let problem = format!("{} is fewer than the 3 a plane needs", config.neighbours);
             return Err(InvalidSetting::field("normals.neighbours", problem).into());
         }
+        config.organised.validate().map_err(|e| e.within("normals.organised"))?;
         Ok(Self { config })
+    }
+
+    pub fn config(&self) -> &NormalConfig {
+        &self.config
     }
 
     /// One normal per point of the cloud `grid` indexes (`points`, in the
@@ -136,33 +144,51 @@ fn fill_portable(
     let mut hint = f64::INFINITY;
     for (i, normal_out) in (first..).zip(out.iter_mut()) {
         let neighbours = grid.nearest(i, k, &mut hint, &mut scratch);
-        // One pass over the neighbours, relative to the point itself (small
-        // numbers: no cancellation to speak of).
-        let p = points[i].cast::<f64>().coords;
-        let (mut sum, mut products) = (Vec3::zeros(), [0.0; 6]);
-        for &slot in neighbours {
-            let q = grid.point(slot);
-            let d = [f64::from(q[0]) - p.x, f64::from(q[1]) - p.y, f64::from(q[2]) - p.z];
-            sum += Vec3::from(d);
-            products[0] += d[0] * d[0];
-            products[1] += d[0] * d[1];
-            products[2] += d[0] * d[2];
-            products[3] += d[1] * d[1];
-            products[4] += d[1] * d[2];
-            products[5] += d[2] * d[2];
-        }
-        let n = neighbours.len() as f64;
-        let mean = sum / n;
-        let [xx, xy, xz, yy, yz, zz] = products;
-        let covariance = Mat3::new(xx, xy, xz, xy, yy, yz, xz, yz, zz) - mean * sum.transpose();
-        let (mut normal, curvature) = smallest_eigenvector(&covariance);
-        if normal.dot(&(sensor - p)) < 0.0 {
-            normal = -normal;
-        }
-        // The point's distance from its neighbours' mean, along the normal.
-        let offset = -normal.dot(&mean);
-        *normal_out = PointNormal { normal, curvature, offset };
+        *normal_out = plane_of_neighbours(points[i], neighbours.iter().map(|&slot| grid.point(slot)), &sensor);
     }
+}
+
+/// The normal of `point`'s neighbourhood (`neighbours`, itself among them)
+/// by PCA, oriented toward `sensor`.
+#[inline(always)]
+pub(crate) fn plane_of_neighbours(
+    point: Point3<f32>,
+    neighbours: impl Iterator<Item = [f32; 3]>,
+    sensor: &Vec3,
+) -> PointNormal {
+    // One pass over the neighbours, relative to the point itself (small
+    // numbers: no cancellation to speak of).
+    let p = point.cast::<f64>().coords;
+    let (mut sum, mut products, mut count) = (Vec3::zeros(), [0.0; 6], 0usize);
+    for q in neighbours {
+        let d = [f64::from(q[0]) - p.x, f64::from(q[1]) - p.y, f64::from(q[2]) - p.z];
+        sum += Vec3::from(d);
+        products[0] += d[0] * d[0];
+        products[1] += d[0] * d[1];
+        products[2] += d[0] * d[2];
+        products[3] += d[1] * d[1];
+        products[4] += d[1] * d[2];
+        products[5] += d[2] * d[2];
+        count += 1;
+    }
+    plane_from_moments(&p, &sum, products, count as f64, sensor)
+}
+
+/// The normal at `p` of neighbours whose offsets from `p` sum to `sum`,
+/// their products (xx, xy, xz, yy, yz, zz) to `products`, `n` of them;
+/// oriented toward `sensor`.
+#[inline(always)]
+pub(crate) fn plane_from_moments(p: &Vec3, sum: &Vec3, products: [f64; 6], n: f64, sensor: &Vec3) -> PointNormal {
+    let mean = sum / n;
+    let [xx, xy, xz, yy, yz, zz] = products;
+    let covariance = Mat3::new(xx, xy, xz, xy, yy, yz, xz, yz, zz) - mean * sum.transpose();
+    let (mut normal, curvature) = smallest_eigenvector(&covariance);
+    if normal.dot(&(sensor - p)) < 0.0 {
+        normal = -normal;
+    }
+    // The point's distance from its neighbours' mean, along the normal.
+    let offset = -normal.dot(&mean);
+    PointNormal { normal, curvature, offset }
 }
 
 /// Points searched in order by one task, each search starting from the

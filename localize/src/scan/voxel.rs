@@ -30,6 +30,11 @@ impl VoxelFilter {
         Ok(Self { config })
     }
 
+    /// Whether `downsample` returns its input as it is (size 0).
+    pub fn keeps_every_point(&self) -> bool {
+        self.config.size_m <= 0.0
+    }
+
     /// The centroids of the occupied voxels, in first-seen order (so the
     /// result does not depend on hashing).
     pub fn downsample(&self, points: &[Point3<f32>]) -> Vec<Point3<f32>> {
