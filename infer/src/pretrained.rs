@@ -233,6 +233,9 @@ fn resolve_convention(tensors: &BTreeMap<String, FileTensor>, convention: InputC
     }
 }
 
+/// Per convolution to load: its index in our trunk, its weights and biases.
+type ConvPlan = Vec<(usize, Vec<f32>, Vec<f32>)>;
+
 /// The weights and biases each of our convolutions takes from `tensors`
 /// (their filters chosen when `prune`), and whether any was pruned; or every
 /// problem found, with what the file holds.
@@ -242,7 +245,7 @@ fn plan_convs(
     conv_names: &[String],
     convention: InputConvention,
     prune: bool,
-) -> Result<(Vec<(usize, Vec<f32>, Vec<f32>)>, bool), String> {
+) -> Result<(ConvPlan, bool), String> {
     let mut problems = String::new();
     let mut planned: Vec<(usize, Vec<f32>, Vec<f32>)> = Vec::new();
     // The previous layer's output channels that were kept, when pruned.

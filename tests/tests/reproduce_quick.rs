@@ -118,7 +118,7 @@ fn report_quotes_the_runs(out: &std::path::Path, fused_rows: &[(Backbone, reprod
 /// only alexnet's training and localization.
 fn resumes_only_what_changed(out: &std::path::Path, plan: &Plan, results: &reproduce::Results) {
     // Run again: nothing to do but the report.
-    let again = reproduce::reproduce(out, &plan, false).unwrap();
+    let again = reproduce::reproduce(out, plan, false).unwrap();
     assert_eq!(again.reused.len(), 1 + 3 + 3 + 3, "{:?}", again.reused);
     assert_eq!(again.runs[0].final_train_loss, results.runs[0].final_train_loss);
 
