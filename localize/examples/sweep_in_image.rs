@@ -45,6 +45,53 @@ fn colour(k: usize) -> Rgb<u8> {
     Rgb(PALETTE[k % PALETTE.len()])
 }
 
+/// The geometry stages on `points`, seven times; prints each stage's median
+/// milliseconds and what they found, returns the last run's result.
+fn timed_geometry(points: &[nalgebra::Point3<f32>]) -> Result<localize::scan::geometry::Geometry> {
+    let stages = LocalizeConfig::default().geometry_stages()?;
+    // The stages' own clocks, over a few repeats: the median.
+    let mut timings = Vec::new();
+    let mut geometry = None;
+    for _ in 0..7 {
+        let g = stages.run(points, &Vec3::zeros())?;
+        timings.push([g.normals_ms, g.planes_ms, g.corners_ms]);
+        geometry = Some(g);
+    }
+    let geometry = geometry.expect("seven runs");
+    let median = |i: usize| {
+        let mut v: Vec<f64> = timings.iter().map(|t| t[i]).collect();
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    println!(
+        "{} points: normals {:.1} ms, planes {:.1} ms, corners {:.1} ms (median of 7); {} planes, {} corners",
+        points.len(),
+        median(0),
+        median(1),
+        median(2),
+        geometry.planes.planes.len(),
+        geometry.corners.corners.len()
+    );
+    Ok(geometry)
+}
+
+/// A filled disc of `colour` at pixel (u, v), clipped to the canvas.
+fn dot(canvas: &mut RgbImage, (u, v): (i64, i64), radius: i64, colour: Rgb<u8>) {
+    for dv in -radius..=radius {
+        for du in -radius..=radius {
+            let (x, y) = (u + du, v + dv);
+            if du * du + dv * dv <= radius * radius
+                && x >= 0
+                && y >= 0
+                && x < i64::from(canvas.width())
+                && y < i64::from(canvas.height())
+            {
+                canvas.put_pixel(x as u32, y as u32, colour);
+            }
+        }
+    }
+}
+
 fn main() -> Result<()> {
     let args: Vec<PathBuf> = std::env::args_os().skip(1).map(PathBuf::from).collect();
     let [cloud, image, intrinsics, extrinsic, out] = args.as_slice() else {
@@ -61,30 +108,7 @@ fn main() -> Result<()> {
     let camera_from_lidar: Pose3 =
         datasets::math::pose_from_rows(&rows).context("the extrinsic is not a rigid transform")?;
     let cloud = read_cloud(cloud, NonFinite::Drop)?;
-    let stages = LocalizeConfig::default().geometry_stages()?;
-    // The stages' own clocks, over a few repeats: the median.
-    let mut timings = Vec::new();
-    let mut geometry = None;
-    for _ in 0..7 {
-        let g = stages.run(&cloud.points, &Vec3::zeros())?;
-        timings.push([g.normals_ms, g.planes_ms, g.corners_ms]);
-        geometry = Some(g);
-    }
-    let geometry = geometry.expect("seven runs");
-    let median = |i: usize| {
-        let mut v: Vec<f64> = timings.iter().map(|t| t[i]).collect();
-        v.sort_by(f64::total_cmp);
-        v[v.len() / 2]
-    };
-    println!(
-        "{} points: normals {:.1} ms, planes {:.1} ms, corners {:.1} ms (median of 7); {} planes, {} corners",
-        cloud.len(),
-        median(0),
-        median(1),
-        median(2),
-        geometry.planes.planes.len(),
-        geometry.corners.corners.len()
-    );
+    let geometry = timed_geometry(&cloud.points)?;
     let photo = datasets::atomic::read_image(image)?.to_rgb8();
     // The photo dimmed, so that the points stand out.
     let mut canvas = RgbImage::from_fn(photo.width(), photo.height(), |x, y| {
@@ -101,21 +125,6 @@ fn main() -> Result<()> {
         let (u, v) = (k[0] * x + k[2], k[4] * y + k[5]);
         let inside = u >= 0.0 && v >= 0.0 && u < width && v < height;
         inside.then_some((u as i64, v as i64))
-    };
-    let dot = |canvas: &mut RgbImage, (u, v): (i64, i64), radius: i64, colour: Rgb<u8>| {
-        for dv in -radius..=radius {
-            for du in -radius..=radius {
-                let (x, y) = (u + du, v + dv);
-                if du * du + dv * dv <= radius * radius
-                    && x >= 0
-                    && y >= 0
-                    && x < i64::from(canvas.width())
-                    && y < i64::from(canvas.height())
-                {
-                    canvas.put_pixel(x as u32, y as u32, colour);
-                }
-            }
-        }
     };
     for (k, plane) in geometry.planes.planes.iter().enumerate() {
         for &i in &plane.inliers {

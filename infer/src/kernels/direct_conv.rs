@@ -342,94 +342,179 @@ unsafe fn run_grad_kernel(isa: Isa, block: &GradBlock) {
     }
 }
 
+/// The vector operations the kernels use, for one instruction set: the
+/// kernels below are written once against it and compiled for each set in
+/// its own `#[target_feature]` function (`avx512`, `avx2`), where these
+/// `#[inline(always)]` operations become single instructions.
 #[cfg(target_arch = "x86_64")]
-mod avx512 {
-    use std::arch::x86_64::*;
+trait Lanes {
+    /// f32 lanes per vector.
+    const WIDTH: usize;
+    type V: Copy;
+    type Mask: Copy;
+    /// The first `count` lanes (1 to `WIDTH`; more: all).
+    unsafe fn mask(count: usize) -> Self::Mask;
+    unsafe fn zero() -> Self::V;
+    unsafe fn splat(x: f32) -> Self::V;
+    unsafe fn load(p: *const f32) -> Self::V;
+    /// Lanes outside the mask read as zero.
+    unsafe fn load_masked(p: *const f32, mask: Self::Mask) -> Self::V;
+    unsafe fn store(p: *mut f32, v: Self::V);
+    unsafe fn store_masked(p: *mut f32, mask: Self::Mask, v: Self::V);
+    /// a * b + c, rounded once.
+    unsafe fn fmadd(a: Self::V, b: Self::V, c: Self::V) -> Self::V;
+    unsafe fn add(a: Self::V, b: Self::V) -> Self::V;
+    unsafe fn max(a: Self::V, b: Self::V) -> Self::V;
+}
 
-    use super::{BLOCK_O, Block, GradBlock};
-
-    /// `NV` vectors of 16 columns by `BLOCK_O` output channels; the last
-    /// vector holds `tail` columns (1-16).
-    #[target_feature(enable = "avx512f")]
-    pub unsafe fn kernel<const NV: usize>(b: &Block, tail: usize) {
-        let mask: __mmask16 = if tail >= 16 { 0xffff } else { (1u16 << tail) - 1 };
-        let mut acc = [[_mm512_setzero_ps(); NV]; BLOCK_O];
-        unsafe {
-            for c in 0..b.channels {
-                let channel = b.input.add(c * b.plane);
-                let weights = b.weight.add(c * 9 * BLOCK_O);
-                for tap in 0..9 {
-                    let src = channel.add(tap / 3 * b.row + tap % 3);
-                    let mut v = [_mm512_setzero_ps(); NV];
-                    for (j, v) in v.iter_mut().enumerate() {
-                        *v = if j + 1 == NV {
-                            _mm512_maskz_loadu_ps(mask, src.add(16 * j))
-                        } else {
-                            _mm512_loadu_ps(src.add(16 * j))
-                        };
-                    }
-                    for (i, acc) in acc.iter_mut().enumerate() {
-                        let wv = _mm512_set1_ps(*weights.add(tap * BLOCK_O + i));
-                        for (a, v) in acc.iter_mut().zip(&v) {
-                            *a = _mm512_fmadd_ps(wv, *v, *a);
-                        }
+/// `NV` vectors of `L::WIDTH` columns by `BLOCK_O` output channels; the
+/// last vector holds `tail` columns (1 to `L::WIDTH`).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn kernel<L: Lanes, const NV: usize>(b: &Block, tail: usize) {
+    unsafe {
+        let mask = L::mask(tail);
+        let mut acc = [[L::zero(); NV]; BLOCK_O];
+        for c in 0..b.channels {
+            let channel = b.input.add(c * b.plane);
+            let weights = b.weight.add(c * 9 * BLOCK_O);
+            for tap in 0..9 {
+                let src = channel.add(tap / 3 * b.row + tap % 3);
+                let mut v = [L::zero(); NV];
+                for (j, v) in v.iter_mut().enumerate() {
+                    *v = if j + 1 == NV {
+                        L::load_masked(src.add(L::WIDTH * j), mask)
+                    } else {
+                        L::load(src.add(L::WIDTH * j))
+                    };
+                }
+                for (i, acc) in acc.iter_mut().enumerate() {
+                    let wv = L::splat(*weights.add(tap * BLOCK_O + i));
+                    for (a, v) in acc.iter_mut().zip(&v) {
+                        *a = L::fmadd(wv, *v, *a);
                     }
                 }
             }
-            let zero = _mm512_setzero_ps();
-            for (i, acc) in acc.iter().enumerate().take(b.valid) {
-                let bias = _mm512_set1_ps(b.bias[i]);
-                for (j, a) in acc.iter().enumerate() {
-                    let mut r = _mm512_add_ps(*a, bias);
-                    if b.relu {
-                        // max(0, r) returns r when r is NaN, so NaN stays
-                        // NaN; adding +0 turns a -0 into +0, as Burn's ReLU.
-                        r = _mm512_add_ps(_mm512_max_ps(zero, r), zero);
-                    }
-                    let dst = b.out[i].add(16 * j);
-                    if j + 1 == NV {
-                        _mm512_mask_storeu_ps(dst, mask, r);
-                    } else {
-                        _mm512_storeu_ps(dst, r);
-                    }
+        }
+        let zero = L::zero();
+        for (i, acc) in acc.iter().enumerate().take(b.valid) {
+            let bias = L::splat(b.bias[i]);
+            for (j, a) in acc.iter().enumerate() {
+                let mut r = L::add(*a, bias);
+                if b.relu {
+                    // max(0, r) returns r when r is NaN, so NaN stays NaN;
+                    // adding +0 turns a -0 into +0, as Burn's ReLU.
+                    r = L::add(L::max(zero, r), zero);
+                }
+                let dst = b.out[i].add(L::WIDTH * j);
+                if j + 1 == NV {
+                    L::store_masked(dst, mask, r);
+                } else {
+                    L::store(dst, r);
                 }
             }
         }
     }
-    /// Eight output channels by the three taps of one tap row, over the
-    /// band's rows, 16 columns at a time (the last vector masked).
-    #[target_feature(enable = "avx512f")]
-    pub unsafe fn grad_kernel(b: &GradBlock) {
-        const BO: usize = 8;
-        let mut acc = [[_mm512_setzero_ps(); 3]; BO];
-        unsafe {
-            for y in 0..b.rows {
-                let input = b.input.add(y * b.row);
-                let mut x = 0;
-                while x < b.width {
-                    let left = b.width - x;
-                    let mask: __mmask16 = if left >= 16 { 0xffff } else { (1u16 << left) - 1 };
-                    let v = [
-                        _mm512_maskz_loadu_ps(mask, input.add(x)),
-                        _mm512_maskz_loadu_ps(mask, input.add(x + 1)),
-                        _mm512_maskz_loadu_ps(mask, input.add(x + 2)),
-                    ];
-                    for (i, acc) in acc.iter_mut().enumerate() {
-                        let g = _mm512_maskz_loadu_ps(mask, b.grad[i].add(y * b.width + x));
-                        for (a, v) in acc.iter_mut().zip(&v) {
-                            *a = _mm512_fmadd_ps(g, *v, *a);
-                        }
+}
+
+/// `BO` output channels by the three taps of one tap row, over the band's
+/// rows, `L::WIDTH` columns at a time (the last vector masked).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn grad_kernel<L: Lanes, const BO: usize>(b: &GradBlock) {
+    unsafe {
+        let mut acc = [[L::zero(); 3]; BO];
+        for y in 0..b.rows {
+            let input = b.input.add(y * b.row);
+            let mut x = 0;
+            while x < b.width {
+                let mask = L::mask(b.width - x);
+                let v = [
+                    L::load_masked(input.add(x), mask),
+                    L::load_masked(input.add(x + 1), mask),
+                    L::load_masked(input.add(x + 2), mask),
+                ];
+                for (i, acc) in acc.iter_mut().enumerate() {
+                    let g = L::load_masked(b.grad[i].add(y * b.width + x), mask);
+                    for (a, v) in acc.iter_mut().zip(&v) {
+                        *a = L::fmadd(g, *v, *a);
                     }
-                    x += 16;
                 }
-            }
-            for (i, acc) in acc.iter().enumerate() {
-                for (kx, a) in acc.iter().enumerate() {
-                    let dst = b.sums.add((i * 3 + kx) * 16);
-                    _mm512_storeu_ps(dst, _mm512_add_ps(_mm512_loadu_ps(dst), *a));
-                }
+                x += L::WIDTH;
             }
         }
+        for (i, acc) in acc.iter().enumerate() {
+            for (kx, a) in acc.iter().enumerate() {
+                let dst = b.sums.add((i * 3 + kx) * L::WIDTH);
+                L::store(dst, L::add(L::load(dst), *a));
+            }
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+mod avx512 {
+    use std::arch::x86_64::*;
+
+    use super::{Block, GradBlock, Lanes};
+
+    pub struct Avx512;
+
+    impl Lanes for Avx512 {
+        const WIDTH: usize = 16;
+        type V = __m512;
+        type Mask = __mmask16;
+        #[inline(always)]
+        unsafe fn mask(count: usize) -> __mmask16 {
+            if count >= 16 { 0xffff } else { (1u16 << count) - 1 }
+        }
+        #[inline(always)]
+        unsafe fn zero() -> __m512 {
+            unsafe { _mm512_setzero_ps() }
+        }
+        #[inline(always)]
+        unsafe fn splat(x: f32) -> __m512 {
+            unsafe { _mm512_set1_ps(x) }
+        }
+        #[inline(always)]
+        unsafe fn load(p: *const f32) -> __m512 {
+            unsafe { _mm512_loadu_ps(p) }
+        }
+        #[inline(always)]
+        unsafe fn load_masked(p: *const f32, mask: __mmask16) -> __m512 {
+            unsafe { _mm512_maskz_loadu_ps(mask, p) }
+        }
+        #[inline(always)]
+        unsafe fn store(p: *mut f32, v: __m512) {
+            unsafe { _mm512_storeu_ps(p, v) }
+        }
+        #[inline(always)]
+        unsafe fn store_masked(p: *mut f32, mask: __mmask16, v: __m512) {
+            unsafe { _mm512_mask_storeu_ps(p, mask, v) }
+        }
+        #[inline(always)]
+        unsafe fn fmadd(a: __m512, b: __m512, c: __m512) -> __m512 {
+            unsafe { _mm512_fmadd_ps(a, b, c) }
+        }
+        #[inline(always)]
+        unsafe fn add(a: __m512, b: __m512) -> __m512 {
+            unsafe { _mm512_add_ps(a, b) }
+        }
+        #[inline(always)]
+        unsafe fn max(a: __m512, b: __m512) -> __m512 {
+            unsafe { _mm512_max_ps(a, b) }
+        }
+    }
+
+    #[target_feature(enable = "avx512f")]
+    pub unsafe fn kernel<const NV: usize>(b: &Block, tail: usize) {
+        unsafe { super::kernel::<Avx512, NV>(b, tail) }
+    }
+
+    /// Eight output channels a block: 24 accumulators of 32 registers.
+    #[target_feature(enable = "avx512f")]
+    pub unsafe fn grad_kernel(b: &GradBlock) {
+        unsafe { super::grad_kernel::<Avx512, 8>(b) }
     }
 }
 
@@ -437,100 +522,68 @@ mod avx512 {
 mod avx2 {
     use std::arch::x86_64::*;
 
-    use super::{BLOCK_O, Block, GradBlock};
+    use super::{Block, GradBlock, Lanes};
 
-    /// `NV` vectors of 8 columns by `BLOCK_O` output channels; the last
-    /// vector holds `tail` columns (1-8).
-    #[target_feature(enable = "avx2,fma")]
-    pub unsafe fn kernel<const NV: usize>(b: &Block, tail: usize) {
-        let lane_on = |lane: usize| if lane < tail { -1i32 } else { 0 };
-        let mask = _mm256_setr_epi32(
-            lane_on(0),
-            lane_on(1),
-            lane_on(2),
-            lane_on(3),
-            lane_on(4),
-            lane_on(5),
-            lane_on(6),
-            lane_on(7),
-        );
-        let mut acc = [[_mm256_setzero_ps(); NV]; BLOCK_O];
-        unsafe {
-            for c in 0..b.channels {
-                let channel = b.input.add(c * b.plane);
-                let weights = b.weight.add(c * 9 * BLOCK_O);
-                for tap in 0..9 {
-                    let src = channel.add(tap / 3 * b.row + tap % 3);
-                    let mut v = [_mm256_setzero_ps(); NV];
-                    for (j, v) in v.iter_mut().enumerate() {
-                        *v = if j + 1 == NV {
-                            _mm256_maskload_ps(src.add(8 * j), mask)
-                        } else {
-                            _mm256_loadu_ps(src.add(8 * j))
-                        };
-                    }
-                    for (i, acc) in acc.iter_mut().enumerate() {
-                        let wv = _mm256_broadcast_ss(&*weights.add(tap * BLOCK_O + i));
-                        for (a, v) in acc.iter_mut().zip(&v) {
-                            *a = _mm256_fmadd_ps(wv, *v, *a);
-                        }
-                    }
-                }
+    pub struct Avx2;
+
+    impl Lanes for Avx2 {
+        const WIDTH: usize = 8;
+        type V = __m256;
+        type Mask = __m256i;
+        #[inline(always)]
+        unsafe fn mask(count: usize) -> __m256i {
+            unsafe {
+                let left = count.min(8) as i32;
+                _mm256_cmpgt_epi32(_mm256_set1_epi32(left), _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7))
             }
-            let zero = _mm256_setzero_ps();
-            for (i, acc) in acc.iter().enumerate().take(b.valid) {
-                let bias = _mm256_set1_ps(b.bias[i]);
-                for (j, a) in acc.iter().enumerate() {
-                    let mut r = _mm256_add_ps(*a, bias);
-                    if b.relu {
-                        r = _mm256_add_ps(_mm256_max_ps(zero, r), zero);
-                    }
-                    let dst = b.out[i].add(8 * j);
-                    if j + 1 == NV {
-                        _mm256_maskstore_ps(dst, mask, r);
-                    } else {
-                        _mm256_storeu_ps(dst, r);
-                    }
-                }
-            }
+        }
+        #[inline(always)]
+        unsafe fn zero() -> __m256 {
+            unsafe { _mm256_setzero_ps() }
+        }
+        #[inline(always)]
+        unsafe fn splat(x: f32) -> __m256 {
+            unsafe { _mm256_set1_ps(x) }
+        }
+        #[inline(always)]
+        unsafe fn load(p: *const f32) -> __m256 {
+            unsafe { _mm256_loadu_ps(p) }
+        }
+        #[inline(always)]
+        unsafe fn load_masked(p: *const f32, mask: __m256i) -> __m256 {
+            unsafe { _mm256_maskload_ps(p, mask) }
+        }
+        #[inline(always)]
+        unsafe fn store(p: *mut f32, v: __m256) {
+            unsafe { _mm256_storeu_ps(p, v) }
+        }
+        #[inline(always)]
+        unsafe fn store_masked(p: *mut f32, mask: __m256i, v: __m256) {
+            unsafe { _mm256_maskstore_ps(p, mask, v) }
+        }
+        #[inline(always)]
+        unsafe fn fmadd(a: __m256, b: __m256, c: __m256) -> __m256 {
+            unsafe { _mm256_fmadd_ps(a, b, c) }
+        }
+        #[inline(always)]
+        unsafe fn add(a: __m256, b: __m256) -> __m256 {
+            unsafe { _mm256_add_ps(a, b) }
+        }
+        #[inline(always)]
+        unsafe fn max(a: __m256, b: __m256) -> __m256 {
+            unsafe { _mm256_max_ps(a, b) }
         }
     }
 
-    /// Four output channels by the three taps of one tap row, over the
-    /// band's rows, 8 columns at a time (the last vector masked).
+    #[target_feature(enable = "avx2,fma")]
+    pub unsafe fn kernel<const NV: usize>(b: &Block, tail: usize) {
+        unsafe { super::kernel::<Avx2, NV>(b, tail) }
+    }
+
+    /// Four output channels a block: 12 accumulators of 16 registers.
     #[target_feature(enable = "avx2,fma")]
     pub unsafe fn grad_kernel(b: &GradBlock) {
-        const BO: usize = 4;
-        let mut acc = [[_mm256_setzero_ps(); 3]; BO];
-        let lanes = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
-        unsafe {
-            for y in 0..b.rows {
-                let input = b.input.add(y * b.row);
-                let mut x = 0;
-                while x < b.width {
-                    let left = (b.width - x).min(8) as i32;
-                    let mask = _mm256_cmpgt_epi32(_mm256_set1_epi32(left), lanes);
-                    let v = [
-                        _mm256_maskload_ps(input.add(x), mask),
-                        _mm256_maskload_ps(input.add(x + 1), mask),
-                        _mm256_maskload_ps(input.add(x + 2), mask),
-                    ];
-                    for (i, acc) in acc.iter_mut().enumerate() {
-                        let g = _mm256_maskload_ps(b.grad[i].add(y * b.width + x), mask);
-                        for (a, v) in acc.iter_mut().zip(&v) {
-                            *a = _mm256_fmadd_ps(g, *v, *a);
-                        }
-                    }
-                    x += 8;
-                }
-            }
-            for (i, acc) in acc.iter().enumerate() {
-                for (kx, a) in acc.iter().enumerate() {
-                    let dst = b.sums.add((i * 3 + kx) * 8);
-                    _mm256_storeu_ps(dst, _mm256_add_ps(_mm256_loadu_ps(dst), *a));
-                }
-            }
-        }
+        unsafe { super::grad_kernel::<Avx2, 4>(b) }
     }
 }
 

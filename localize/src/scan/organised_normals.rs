@@ -286,6 +286,49 @@ mod tests {
         points
     }
 
+    /// The true normal of a point of `scan()`'s surfaces (the box's face
+    /// toward the sensor, the walls, the floor); zero elsewhere.
+    fn true_normal(p: &Point3<f32>) -> Vec3 {
+        let p = p.cast::<f64>();
+        if (p.x - 3.0).abs() < 0.05 && p.y.abs() < 0.45 {
+            -Vec3::x()
+        } else if (p.z + 0.75).abs() < 0.05 {
+            Vec3::z()
+        } else if (p.x.abs() - 5.0).abs() < 0.05 && p.y.abs() < 3.9 && p.z < 2.1 && p.z > -0.6 {
+            -Vec3::x() * p.x.signum()
+        } else if (p.y.abs() - 4.0).abs() < 0.05 && p.x.abs() < 4.9 && p.z < 2.1 && p.z > -0.6 {
+            -Vec3::y() * p.y.signum()
+        } else {
+            Vec3::zeros()
+        }
+    }
+
+    /// The floor, grazed by the lowest beams, stays whole: its normals point
+    /// up. The exact k nearest are mostly on one ring there (a line: no
+    /// normal to speak of).
+    fn the_grazed_floor_stays_whole(points: &[Point3<f32>], organised: &[PointNormal], exact: &[PointNormal]) {
+        let share_within = |v: &[f64], deg: f64| v.iter().filter(|&&e| e < deg).count() as f64 / v.len() as f64;
+        let floor: Vec<f64> = points
+            .iter()
+            .zip(organised)
+            .filter(|(p, _)| (p.z + 0.75).abs() < 0.05 && p.x.hypot(p.y) > 2.0)
+            .map(|(_, n)| angle_deg(&n.normal, &Vec3::z()))
+            .collect();
+        let floor_exact: Vec<f64> = points
+            .iter()
+            .zip(exact)
+            .filter(|(p, _)| (p.z + 0.75).abs() < 0.05 && p.x.hypot(p.y) > 2.0)
+            .map(|(_, n)| angle_deg(&n.normal, &Vec3::z()))
+            .collect();
+        assert!(
+            floor.len() > 1000 && share_within(&floor, 5.0) > 0.7 && share_within(&floor_exact, 5.0) < 0.5,
+            "{} floor points, {:.3} within 5 degrees (exact {:.3})",
+            floor.len(),
+            share_within(&floor, 5.0),
+            share_within(&floor_exact, 5.0)
+        );
+    }
+
     fn angle_deg(a: &Vec3, b: &Vec3) -> f64 {
         a.dot(b).clamp(-1.0, 1.0).acos().to_degrees()
     }
@@ -300,24 +343,9 @@ mod tests {
         let organised = organised_normals(&points, &image, &sensor, 40, &config);
         let grid = ScanGrid::new(&points, &sensor);
         let exact = NormalEstimator::new(NormalConfig::default()).unwrap().estimate(&points, &grid).unwrap();
-        // The true normal of each point's surface (the box's face toward the sensor, walls, floor).
-        let truth = |p: &Point3<f32>| -> Vec3 {
-            let p = p.cast::<f64>();
-            if (p.x - 3.0).abs() < 0.05 && p.y.abs() < 0.45 {
-                -Vec3::x()
-            } else if (p.z + 0.75).abs() < 0.05 {
-                Vec3::z()
-            } else if (p.x.abs() - 5.0).abs() < 0.05 && p.y.abs() < 3.9 && p.z < 2.1 && p.z > -0.6 {
-                -Vec3::x() * p.x.signum()
-            } else if (p.y.abs() - 4.0).abs() < 0.05 && p.x.abs() < 4.9 && p.z < 2.1 && p.z > -0.6 {
-                -Vec3::y() * p.y.signum()
-            } else {
-                Vec3::zeros()
-            }
-        };
         let (mut errors_organised, mut errors_exact) = (Vec::new(), Vec::new());
         for (i, p) in points.iter().enumerate() {
-            let t = truth(p);
+            let t = true_normal(p);
             if t == Vec3::zeros() {
                 continue;
             }
@@ -333,28 +361,7 @@ mod tests {
         let (mo, me) = (median(&mut errors_organised), median(&mut errors_exact));
         assert!(mo < 1.5 && mo < 1.5 * me + 0.2, "median error organised {mo:.2} deg, exact {me:.2} deg");
         assert!(share_within(&errors_organised, 5.0) >= share_within(&errors_exact, 5.0) - 0.01);
-        // The floor, grazed by the lowest beams, stays whole: its normals
-        // point up. The exact k nearest are mostly on one ring there (a
-        // line: no normal to speak of).
-        let floor: Vec<f64> = points
-            .iter()
-            .zip(&organised)
-            .filter(|(p, _)| (p.z + 0.75).abs() < 0.05 && p.x.hypot(p.y) > 2.0)
-            .map(|(_, n)| angle_deg(&n.normal, &Vec3::z()))
-            .collect();
-        let floor_exact: Vec<f64> = points
-            .iter()
-            .zip(&exact)
-            .filter(|(p, _)| (p.z + 0.75).abs() < 0.05 && p.x.hypot(p.y) > 2.0)
-            .map(|(_, n)| angle_deg(&n.normal, &Vec3::z()))
-            .collect();
-        assert!(
-            floor.len() > 1000 && share_within(&floor, 5.0) > 0.7 && share_within(&floor_exact, 5.0) < 0.5,
-            "{} floor points, {:.3} within 5 degrees (exact {:.3})",
-            floor.len(),
-            share_within(&floor, 5.0),
-            share_within(&floor_exact, 5.0)
-        );
+        the_grazed_floor_stays_whole(&points, &organised, &exact);
         // On the box's face, next to its sides (the wall 2 m behind), the
         // normals do not bleed: within 5 degrees of -x on both sides (the
         let edge: Vec<usize> = (0..points.len())
