@@ -295,25 +295,13 @@ impl<C: CheckpointStrategy> GemmConvBackend for Autodiff<Flex, C> {
         bias: FloatTensor<Self>,
         options: ConvOptions<2>,
     ) -> FloatTensor<Self> {
-        match Conv2dGemmBackward.prepare::<C>([x.node(), weight.node(), bias.node()]).compute_bound().stateful() {
-            OpsKind::Tracked(mut prep) => {
-                let x_state = prep.checkpoint(&x);
-                let weight_state = prep.checkpoint(&weight);
-                let out = Flex::conv2d_gemm(
-                    x.into_primitive(),
-                    weight.into_primitive(),
-                    bias.into_primitive(),
-                    options.clone(),
-                );
-                prep.finish((x_state, weight_state, options), out)
-            }
-            OpsKind::UnTracked(prep) => prep.finish(Flex::conv2d_gemm(
-                x.into_primitive(),
-                weight.into_primitive(),
-                bias.into_primitive(),
-                options,
-            )),
-        }
+        tracked_conv::<C, _>(
+            Conv2dGemmBackward,
+            [x, weight, bias],
+            options,
+            Flex::conv2d_gemm,
+            |x, weight, options, _| (x, weight, options),
+        )
     }
 
     fn conv2d_relu_gemm(
@@ -322,25 +310,37 @@ impl<C: CheckpointStrategy> GemmConvBackend for Autodiff<Flex, C> {
         bias: FloatTensor<Self>,
         options: ConvOptions<2>,
     ) -> FloatTensor<Self> {
-        match Conv2dReluGemmBackward.prepare::<C>([x.node(), weight.node(), bias.node()]).compute_bound().stateful() {
-            OpsKind::Tracked(mut prep) => {
-                let x_state = prep.checkpoint(&x);
-                let weight_state = prep.checkpoint(&weight);
-                let out = Flex::conv2d_relu_gemm(
-                    x.into_primitive(),
-                    weight.into_primitive(),
-                    bias.into_primitive(),
-                    options.clone(),
-                );
-                // The output is what the ReLU's backward pass masks with.
-                prep.finish((x_state, weight_state, options, out.clone()), out)
-            }
-            OpsKind::UnTracked(prep) => prep.finish(Flex::conv2d_relu_gemm(
-                x.into_primitive(),
-                weight.into_primitive(),
-                bias.into_primitive(),
-                options,
-            )),
+        // The output is what the ReLU's backward pass masks with.
+        tracked_conv::<C, _>(
+            Conv2dReluGemmBackward,
+            [x, weight, bias],
+            options,
+            Flex::conv2d_relu_gemm,
+            |x, weight, options, out| (x, weight, options, out.clone()),
+        )
+    }
+}
+
+/// A convolution on the autodiff backend: `forward` on the inner tensors,
+/// recorded (when a parent is tracked) for `step`'s backward pass with the
+/// state that `state` makes of the checkpointed input and weight, the
+/// options and the output.
+fn tracked_conv<C: CheckpointStrategy, K: Backward<Flex, 3>>(
+    step: K,
+    [x, weight, bias]: [FloatTensor<Autodiff<Flex, C>>; 3],
+    options: ConvOptions<2>,
+    forward: fn(FloatTensor<Flex>, FloatTensor<Flex>, FloatTensor<Flex>, ConvOptions<2>) -> FloatTensor<Flex>,
+    state: impl FnOnce(NodeId, NodeId, ConvOptions<2>, &FloatTensor<Flex>) -> K::State,
+) -> FloatTensor<Autodiff<Flex, C>> {
+    match step.prepare::<C>([x.node(), weight.node(), bias.node()]).compute_bound().stateful() {
+        OpsKind::Tracked(mut prep) => {
+            let x_state = prep.checkpoint(&x);
+            let weight_state = prep.checkpoint(&weight);
+            let out = forward(x.into_primitive(), weight.into_primitive(), bias.into_primitive(), options.clone());
+            prep.finish(state(x_state, weight_state, options, &out), out)
+        }
+        OpsKind::UnTracked(prep) => {
+            prep.finish(forward(x.into_primitive(), weight.into_primitive(), bias.into_primitive(), options))
         }
     }
 }
