@@ -321,6 +321,9 @@ impl<C: CheckpointStrategy> GemmConvBackend for Autodiff<Flex, C> {
     }
 }
 
+/// A convolution on the flex backend: input, weight, bias, options.
+type FlexConv = fn(FloatTensor<Flex>, FloatTensor<Flex>, FloatTensor<Flex>, ConvOptions<2>) -> FloatTensor<Flex>;
+
 /// A convolution on the autodiff backend: `forward` on the inner tensors,
 /// recorded (when a parent is tracked) for `step`'s backward pass with the
 /// state that `state` makes of the checkpointed input and weight, the
@@ -329,7 +332,7 @@ fn tracked_conv<C: CheckpointStrategy, K: Backward<Flex, 3>>(
     step: K,
     [x, weight, bias]: [FloatTensor<Autodiff<Flex, C>>; 3],
     options: ConvOptions<2>,
-    forward: fn(FloatTensor<Flex>, FloatTensor<Flex>, FloatTensor<Flex>, ConvOptions<2>) -> FloatTensor<Flex>,
+    forward: FlexConv,
     state: impl FnOnce(NodeId, NodeId, ConvOptions<2>, &FloatTensor<Flex>) -> K::State,
 ) -> FloatTensor<Autodiff<Flex, C>> {
     match step.prepare::<C>([x.node(), weight.node(), bias.node()]).compute_bound().stateful() {
