@@ -208,7 +208,8 @@ impl Neighbourhood<'_> {
                 kept.push((d, d2, dr != 0, dc != 0));
             }
         }
-        // The k nearest of them, as the exact path takes the k nearest of all.
+        // The k nearest of them (the point itself comes on top, where the
+        // exact path counts it among its k).
         if kept.len() > k {
             kept.select_nth_unstable_by(k - 1, |a, b| a.1.total_cmp(&b.1));
             kept.truncate(k);
