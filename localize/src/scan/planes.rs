@@ -269,6 +269,9 @@ impl PlaneExtractor {
         }
         let mut votes = VoteCounts::new(&ball, &cells);
         let mut labels: Vec<Option<u16>> = vec![None; points.len()];
+        // The points no plane has taken yet, in index order: what each
+        // gathering scans (fewer and fewer as planes take them).
+        let mut untaken: Vec<u32> = (0..points.len() as u32).collect();
         let mut planes: Vec<Plane> = Vec::new();
         let cos_inlier = c.inlier_angle_deg.to_radians().cos();
         let mut exhausted: std::collections::HashSet<u64> = std::collections::HashSet::new();
@@ -288,7 +291,7 @@ impl PlaneExtractor {
                 .copied()
                 .filter(|&i| labels[i as usize].is_none())
                 .collect();
-            let inliers = gather_inliers(&seed, points, &labels, &voting, c);
+            let inliers = gather_inliers(&seed, points, &untaken, &voting, c);
             if inliers.len() < c.min_inliers {
                 exhausted.insert(key);
                 continue;
@@ -297,6 +300,7 @@ impl PlaneExtractor {
             for &i in &plane.inliers {
                 labels[i as usize] = Some(planes.len() as u16);
             }
+            untaken.retain(|&i| labels[i as usize].is_none());
             votes.withdraw(plane.inliers.iter().filter_map(|&i| cell_of[i as usize]));
             planes.push(plane);
         }
@@ -306,13 +310,13 @@ impl PlaneExtractor {
     }
 }
 
-/// The untaken points of the plane a seed cell's points vote for. Gather,
+/// The points of `untaken` on the plane a seed cell's points vote for. Gather,
 /// refit, gather again: the seed cell's plane is only as good as one cell;
 /// the refit uses every inlier.
 fn gather_inliers(
     seed: &[u32],
     points: &[Point3<f32>],
-    labels: &[Option<u16>],
+    untaken: &[u32],
     voting: &[(Vec3, f64)],
     c: &PlaneConfig,
 ) -> Vec<u32> {
@@ -322,12 +326,12 @@ fn gather_inliers(
     let mut distance = seed.iter().map(|&i| normal.dot(&at(i as usize))).sum::<f64>() / seed.len() as f64;
     let mut inliers = Vec::new();
     for _ in 0..3 {
-        inliers = (0..points.len() as u32)
-            .into_par_iter()
+        inliers = untaken
+            .par_iter()
+            .copied()
             .filter(|&i| {
                 let i = i as usize;
-                labels[i].is_none()
-                    && (normal.dot(&at(i)) - distance).abs() < c.inlier_distance_m
+                (normal.dot(&at(i)) - distance).abs() < c.inlier_distance_m
                     && voting[i].0.dot(&normal).abs() > cos_inlier
             })
             .collect();
