@@ -60,9 +60,10 @@ impl GeometryStages {
 
     /// The rows and columns of `points` seen from `sensor`, and the
     /// milliseconds their recovery took; None where the organised normals
-    /// are off, the cloud is thinned before them, or it has no rows and
-    /// columns, or rows too far apart. Recover them from a sweep before deskewing it (deskewing
-    /// moves each point off its beam) and pass them to `run_on`.
+    /// are off, the cloud is thinned before them, it has no rows and
+    /// columns, or its rows lie too far apart. Recover them from a sweep
+    /// before deskewing it (deskewing moves each point off its beam) and
+    /// pass them to `run_on`.
     pub fn range_image(&self, points: &[Point3<f32>], sensor: &Vec3) -> Option<(RangeImage, f64)> {
         let config = self.normals.config();
         // A thinned cloud has lost its rows and columns.
@@ -105,7 +106,6 @@ impl GeometryStages {
             }
         };
         let normals_ms = ms_since(start) + image_ms;
-
         let start = Instant::now();
         let planes = self.planes.extract(&points, &normals);
         let planes_ms = ms_since(start);

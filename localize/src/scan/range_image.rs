@@ -204,10 +204,13 @@ fn cluster_rows(coordinates: &[[f64; 2]], gap: f64) -> Result<(Vec<u32>, Vec<f64
         .filter(|c| c[0].is_finite())
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), c| (lo.min(c[0]), hi.max(c[0])));
     let width = gap / 4.0;
-    let bins = ((hi - lo) / width) as usize + 1;
-    if bins > 1 << 24 {
+    // A spread too wide to bin (a point grazing a pinhole's image plane, say)
+    // is no image.
+    let span_bins = (hi - lo) / width;
+    if !(span_bins < (1u64 << 24) as f64) {
         return Err(NotOrganised::Rows(0));
     }
+    let bins = span_bins as usize + 1;
     let bin_of = |value: f64| (((value - lo) / width) as usize).min(bins - 1);
     // Per bin: count, sum, least and greatest value.
     let mut histogram = vec![(0u32, 0.0f64, f64::INFINITY, f64::NEG_INFINITY); bins];
@@ -404,5 +407,10 @@ mod tests {
             .downsample(&points);
         assert!(RangeImage::recover(&thinned, &sensor, &Recovery::default()).is_err());
         assert!(RangeImage::recover(&points[..10], &sensor, &Recovery::default()).is_err());
+        // One point nearly in the sensor's plane spreads the coordinates
+        // beyond binning: refused, not a huge allocation.
+        let mut grazing = points.clone();
+        grazing[0] = Point3::new(1e-30, 1.0, 1.0);
+        assert!(RangeImage::recover_as(&grazing, &Vec3::zeros(), Projection::Pinhole, &Recovery::default()).is_err());
     }
 }
