@@ -53,6 +53,11 @@ pub enum NotOrganised {
     Rows(usize),
     /// Too many points share a cell (columns not on a regular pitch).
     SharedCells(f64),
+    /// The rows and columns would hold far more cells than there are points.
+    Sparse {
+        cells: usize,
+        points: usize,
+    },
 }
 
 impl std::fmt::Display for NotOrganised {
@@ -61,6 +66,7 @@ impl std::fmt::Display for NotOrganised {
             Self::TooFewPoints(n) => write!(f, "{n} points are too few for rows and columns"),
             Self::Rows(n) => write!(f, "the points' row coordinates fall into {n} clusters, not separate rows"),
             Self::SharedCells(share) => write!(f, "{:.0} % of the points share a cell", share * 100.0),
+            Self::Sparse { cells, points } => write!(f, "{cells} cells for {points} points"),
         }
     }
 }
@@ -125,6 +131,11 @@ impl RangeImage {
                 (lo, cols.min(1 << 16), false)
             }
         };
+        // A range image is mostly full; one far emptier is no image (and
+        // would be a large allocation).
+        if rows * cols > MAX_CELLS_PER_POINT * points.len() {
+            return Err(NotOrganised::Sparse { cells: rows * cols, points: points.len() });
+        }
         let col_width = if wraps { TAU / cols as f64 } else { col_pitch };
         let phase = if wraps { row_phases(&coordinates, &row_of, rows, col0, col_width) } else { vec![0.0; rows] };
         let mut occupant = vec![EMPTY; rows * cols];
@@ -301,6 +312,10 @@ fn column_pitch(coordinates: &[[f64; 2]], row_of: &[u32], rows: usize) -> Option
     median(steps).filter(|p| p.is_finite() && *p > 0.0)
 }
 
+/// Cells a range image may hold per point (a depth image with most of its
+/// pixels out of range, a LIDAR scan with much open sky).
+const MAX_CELLS_PER_POINT: usize = 32;
+
 /// Rows whose points give the column pitch.
 const PITCH_ROWS: usize = 8;
 
@@ -412,5 +427,18 @@ mod tests {
         let mut grazing = points.clone();
         grazing[0] = Point3::new(1e-30, 1.0, 1.0);
         assert!(RangeImage::recover_as(&grazing, &Vec3::zeros(), Projection::Pinhole, &Recovery::default()).is_err());
+        // Two rings of points in close pairs: a column pitch of a microradian
+        // would make an image of 131,072 cells for 64 points.
+        let pairs: Vec<Point3<f32>> = (0..64)
+            .map(|k| {
+                let (ring, pair, second) = (k / 32, (k % 32) / 2, k % 2);
+                let azimuth = pair as f64 * 0.2 + second as f64 * 1e-6;
+                let elevation = (ring as f64).to_radians();
+                let ray = Vec3::new(elevation.cos() * azimuth.cos(), elevation.cos() * azimuth.sin(), elevation.sin());
+                (ray * 5.0).cast::<f32>().into()
+            })
+            .collect();
+        let error = RangeImage::recover_as(&pairs, &Vec3::zeros(), Projection::Spherical, &Recovery::default());
+        assert!(matches!(error, Err(NotOrganised::Sparse { points: 64, .. })), "{error:?}");
     }
 }
