@@ -12,6 +12,15 @@ pub type Mat4 = nalgebra::Matrix4<f64>;
 /// A 4x4 homogeneous matrix as rows, the form used in JSON files.
 pub type RowsMat4 = [[f64; 4]; 4];
 
+/// The median of `values` (the upper one of an even count); None when empty.
+pub fn median(mut values: Vec<f64>) -> Option<f64> {
+    if values.is_empty() {
+        return None;
+    }
+    let middle = values.len() / 2;
+    Some(*values.select_nth_unstable_by(middle, f64::total_cmp).1)
+}
+
 pub fn pose_to_rows(pose: &Pose3) -> RowsMat4 {
     let m = pose.to_homogeneous();
     std::array::from_fn(|r| std::array::from_fn(|c| m[(r, c)]))

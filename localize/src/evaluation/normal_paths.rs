@@ -3,7 +3,7 @@
 //! one, their differences in degrees and millimetres, and the milliseconds
 //! of each. What `localize bench` reports for its scans and for real clouds.
 
-use datasets::math::Vec3;
+use datasets::math::{Vec3, median};
 use nalgebra::Point3;
 use serde::Serialize;
 
@@ -85,13 +85,13 @@ pub fn compare_paths(
         organised_planes: organised.planes.planes.len(),
         matched_planes: plane_pairs.len(),
         plane_max_deg: max(&angles),
-        plane_median_deg: median(&angles),
+        plane_median_deg: median(angles.clone()).unwrap_or(0.0),
         plane_max_offset_mm: max(&offsets),
         exact_corners: exact.corners.corners.len(),
         organised_corners: organised.corners.corners.len(),
         matched_corners: corner_mm.len(),
         corner_max_mm: max(&corner_mm),
-        corner_median_mm: median(&corner_mm),
+        corner_median_mm: median(corner_mm.clone()).unwrap_or(0.0),
     })
 }
 
@@ -154,15 +154,6 @@ fn match_corners(a: &[Vec3], b: &[Vec3]) -> Vec<f64> {
 
 fn max(values: &[f64]) -> f64 {
     values.iter().copied().fold(0.0, f64::max)
-}
-
-fn median(values: &[f64]) -> f64 {
-    if values.is_empty() {
-        return 0.0;
-    }
-    let mut v = values.to_vec();
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
 }
 
 #[cfg(test)]

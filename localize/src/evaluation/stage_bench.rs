@@ -267,16 +267,14 @@ fn bench_depth_images(
     stride: usize,
 ) -> Result<Vec<datasets::io::formats::PointCloud>> {
     use datasets::math::Vec3;
-    use datasets::seed::mix;
-    let route = datasets::simulator::world::route::Route::new(&world.layout.route, 1.2);
+    use datasets::seed::{mix, unit};
     let camera = datasets::camera::PinholeCamera::kinect();
     let mount = nalgebra::Isometry3::translation(0.12, 0.0, 0.45);
-    (0..frames)
-        .map(|k| {
-            let s = route.length() * (k as f64 + 0.5) / frames as f64;
-            let (xy, heading) = route.at(s);
-            let robot = datasets::simulator::world::route::pose_on_floor(&world.layout, xy, heading)
-                .ok_or_else(|| LocalizeError::Recording("the benchmark route left the free space".into()))?;
+    let poses = bench_poses(world, frames)?;
+    Ok(poses
+        .iter()
+        .enumerate()
+        .map(|(k, robot)| {
             let world_from_body = robot * mount;
             let origin = nalgebra::Point3::from(world_from_body.translation.vector);
             let mut points = Vec::new();
@@ -287,17 +285,17 @@ fn bench_depth_images(
                     let dir = world_from_body.rotation * ray.normalize();
                     let Some(hit) = world.cast(&origin, &dir, 0.05, 10.0) else { continue };
                     let depth = hit.t / ray.norm();
-                    let key = mix(k as u64 ^ mix((v * 640 + u) as u64));
-                    let gaussian = ((mix(key) >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 3.46;
+                    // Uniform noise of unit variance.
+                    let gaussian = (unit(mix(k as u64 ^ mix((v * 640 + u) as u64))) - 0.5) * 3.46;
                     let depth = depth + (0.0012 + 0.0019 * (depth - 0.4).powi(2)) * gaussian;
                     if (0.2..=4.0).contains(&depth) {
                         points.push((ray * depth).cast::<f32>().into());
                     }
                 }
             }
-            Ok(datasets::io::formats::PointCloud::new(points, None))
+            datasets::io::formats::PointCloud::new(points, None)
         })
-        .collect()
+        .collect())
 }
 
 fn bench_scans(
@@ -305,15 +303,26 @@ fn bench_scans(
     lidar: &datasets::simulator::world::lidar::LidarConfig,
     frames: usize,
 ) -> Result<Vec<datasets::io::formats::PointCloud>> {
-    let route = datasets::simulator::world::route::Route::new(&world.layout.route, 1.2);
     let rig = datasets::simulator::world::rig::Rig::default();
+    let poses = bench_poses(world, frames)?;
+    Ok(poses
+        .iter()
+        .enumerate()
+        .map(|(k, robot)| {
+            datasets::simulator::world::lidar::scan(world, lidar, &(robot * rig.robot_from_lidar), 0.0, k as u64)
+        })
+        .collect())
+}
+
+/// The robot's poses at `frames` evenly spaced places along the built-in route.
+fn bench_poses(world: &datasets::simulator::world::World, frames: usize) -> Result<Vec<datasets::math::Pose3>> {
+    let route = datasets::simulator::world::route::Route::new(&world.layout.route, 1.2);
     (0..frames)
         .map(|k| {
             let s = route.length() * (k as f64 + 0.5) / frames as f64;
             let (xy, heading) = route.at(s);
-            let robot = datasets::simulator::world::route::pose_on_floor(&world.layout, xy, heading)
-                .ok_or_else(|| LocalizeError::Recording("the benchmark route left the free space".into()))?;
-            Ok(datasets::simulator::world::lidar::scan(world, lidar, &(robot * rig.robot_from_lidar), 0.0, k as u64))
+            datasets::simulator::world::route::pose_on_floor(&world.layout, xy, heading)
+                .ok_or_else(|| LocalizeError::Recording("the benchmark route left the free space".into()))
         })
         .collect()
 }

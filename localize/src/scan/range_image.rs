@@ -11,7 +11,7 @@
 
 use std::f64::consts::{PI, TAU};
 
-use datasets::math::Vec3;
+use datasets::math::{Vec3, median};
 use nalgebra::Point3;
 use rayon::prelude::*;
 
@@ -318,14 +318,6 @@ const MAX_CELLS_PER_POINT: usize = 32;
 
 /// Rows whose points give the column pitch.
 const PITCH_ROWS: usize = 8;
-
-fn median(mut values: Vec<f64>) -> Option<f64> {
-    if values.is_empty() {
-        return None;
-    }
-    let middle = values.len() / 2;
-    Some(*values.select_nth_unstable_by(middle, f64::total_cmp).1)
-}
 
 #[cfg(test)]
 mod tests {
