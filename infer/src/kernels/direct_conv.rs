@@ -30,10 +30,12 @@ enum Isa {
     Avx2,
 }
 
+/// The widest kernels this CPU runs (AVX-512 only in builds with the
+/// `avx512` feature).
 fn isa() -> Option<Isa> {
     #[cfg(target_arch = "x86_64")]
     {
-        if std::arch::is_x86_feature_detected!("avx512f") {
+        if cfg!(feature = "avx512") && std::arch::is_x86_feature_detected!("avx512f") {
             return Some(Isa::Avx512);
         }
         if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
@@ -58,14 +60,19 @@ pub fn applies(geo: &ConvGeometry) -> bool {
         && isa().is_some()
 }
 
-/// The input [N, C, H, W] in a frame one zero wide: [N, C, H + 2, W + 2].
+/// Zeros after the padded frame: the forward kernel reads whole vectors
+/// past a row's end (lanes it never stores), up to one vector past the last.
+const FRAME_SLACK: usize = 16;
+
+/// The input [N, C, H, W] in a frame one zero wide: [N, C, H + 2, W + 2],
+/// then `FRAME_SLACK` zeros.
 fn padded(x: &[f32], geo: &ConvGeometry) -> Vec<f32> {
     let [h, w] = geo.in_hw;
     let (ph, pw) = (h + 2, w + 2);
     let len = geo.batch * geo.in_channels * ph * pw;
     // Every value is written below (the border once, the interior once), so
     // the frame is not zeroed first: that memset cost as much as the copy.
-    let mut out: Vec<f32> = Vec::with_capacity(len);
+    let mut out: Vec<f32> = Vec::with_capacity(len + FRAME_SLACK);
     out.spare_capacity_mut().par_chunks_mut(ph * pw).zip(x.par_chunks(h * w)).for_each(|(frame, plane)| {
         let zero = std::mem::MaybeUninit::new(0.0f32);
         frame[..pw].fill(zero);
@@ -81,6 +88,7 @@ fn padded(x: &[f32], geo: &ConvGeometry) -> Vec<f32> {
     });
     // SAFETY: the loop above wrote all `len` values.
     unsafe { out.set_len(len) };
+    out.resize(len + FRAME_SLACK, 0.0);
     out
 }
 
@@ -174,9 +182,11 @@ fn forward_with(isa: Isa, x: &[f32], weight: &[f32], bias: Option<&[f32]>, geo: 
                     bias: block_bias,
                     relu,
                 };
-                // SAFETY: the kernel reads `columns` + 2 values from each of
-                // three rows of every channel of the padded frame starting at
-                // `input` (inside the frame: x0 + columns <= w), 9 x C x
+                // SAFETY: the kernel reads `vectors` x `lanes` + 2 values
+                // from each of three rows of every channel of the padded frame
+                // starting at `input`: at most `lanes` - 2 past a row's end
+                // (columns > (vectors - 1) x lanes), so the last row's
+                // overrun stays inside `FRAME_SLACK`; 9 x C x
                 // BLOCK_O packed weights, and writes `columns` values to each
                 // valid output row; the CPU has the kernel's features (`isa`).
                 unsafe { run_kernel(isa, vectors, columns - (vectors - 1) * lanes, &block) };
@@ -369,11 +379,15 @@ trait Lanes {
 
 /// `NV` vectors of `L::WIDTH` columns by `BLOCK_O` output channels; the
 /// last vector holds `tail` columns (1 to `L::WIDTH`).
+///
+/// Loads are whole vectors: lanes past the tail read the next row (or the
+/// frame's slack) and are never stored. Masked loads would hold the mask in
+/// a register, and AVX2's 16 are all taken (12 accumulators, 3 inputs, 1
+/// weight): with it the kernel spilled and ran behind im2col + GEMM.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 unsafe fn kernel<L: Lanes, const NV: usize>(b: &Block, tail: usize) {
     unsafe {
-        let mask = L::mask(tail);
         let mut acc = [[L::zero(); NV]; BLOCK_O];
         for c in 0..b.channels {
             let channel = b.input.add(c * b.plane);
@@ -382,11 +396,7 @@ unsafe fn kernel<L: Lanes, const NV: usize>(b: &Block, tail: usize) {
                 let src = channel.add(tap / 3 * b.row + tap % 3);
                 let mut v = [L::zero(); NV];
                 for (j, v) in v.iter_mut().enumerate() {
-                    *v = if j + 1 == NV {
-                        L::load_masked(src.add(L::WIDTH * j), mask)
-                    } else {
-                        L::load(src.add(L::WIDTH * j))
-                    };
+                    *v = L::load(src.add(L::WIDTH * j));
                 }
                 for (i, acc) in acc.iter_mut().enumerate() {
                     let wv = L::splat(*weights.add(tap * BLOCK_O + i));
@@ -396,6 +406,7 @@ unsafe fn kernel<L: Lanes, const NV: usize>(b: &Block, tail: usize) {
                 }
             }
         }
+        let mask = L::mask(tail);
         let zero = L::zero();
         for (i, acc) in acc.iter().enumerate().take(b.valid) {
             let bias = L::splat(b.bias[i]);
@@ -418,29 +429,39 @@ unsafe fn kernel<L: Lanes, const NV: usize>(b: &Block, tail: usize) {
 }
 
 /// `BO` output channels by the three taps of one tap row, over the band's
-/// rows, `L::WIDTH` columns at a time (the last vector masked).
+/// rows, `L::WIDTH` columns at a time: whole vectors, then the row's last
+/// columns masked (lanes past the row must read zero here, since every lane
+/// is summed; and the mask stays out of the registers of the main loop).
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 unsafe fn grad_kernel<L: Lanes, const BO: usize>(b: &GradBlock) {
+    #[inline(always)]
+    unsafe fn step<L: Lanes, const BO: usize>(acc: &mut [[L::V; 3]; BO], b: &GradBlock, y: usize, x: usize, mask: Option<L::Mask>) {
+        unsafe {
+            let load = |p: *const f32| match mask {
+                Some(m) => L::load_masked(p, m),
+                None => L::load(p),
+            };
+            let input = b.input.add(y * b.row + x);
+            let v = [load(input), load(input.add(1)), load(input.add(2))];
+            for (i, acc) in acc.iter_mut().enumerate() {
+                let g = load(b.grad[i].add(y * b.width + x));
+                for (a, v) in acc.iter_mut().zip(&v) {
+                    *a = L::fmadd(g, *v, *a);
+                }
+            }
+        }
+    }
     unsafe {
         let mut acc = [[L::zero(); 3]; BO];
+        let whole = b.width / L::WIDTH * L::WIDTH;
+        let tail = (whole < b.width).then(|| L::mask(b.width - whole));
         for y in 0..b.rows {
-            let input = b.input.add(y * b.row);
-            let mut x = 0;
-            while x < b.width {
-                let mask = L::mask(b.width - x);
-                let v = [
-                    L::load_masked(input.add(x), mask),
-                    L::load_masked(input.add(x + 1), mask),
-                    L::load_masked(input.add(x + 2), mask),
-                ];
-                for (i, acc) in acc.iter_mut().enumerate() {
-                    let g = L::load_masked(b.grad[i].add(y * b.width + x), mask);
-                    for (a, v) in acc.iter_mut().zip(&v) {
-                        *a = L::fmadd(g, *v, *a);
-                    }
-                }
-                x += L::WIDTH;
+            for x in (0..whole).step_by(L::WIDTH) {
+                step::<L, BO>(&mut acc, b, y, x, None);
+            }
+            if tail.is_some() {
+                step::<L, BO>(&mut acc, b, y, whole, tail);
             }
         }
         for (i, acc) in acc.iter().enumerate() {

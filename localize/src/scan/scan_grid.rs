@@ -35,10 +35,11 @@ pub struct NeighbourScratch {
 }
 
 impl Default for NeighbourScratch {
-    /// Searches with the widest vectors the CPU has.
+    /// Searches with the widest vectors the CPU has (AVX-512 only in builds
+    /// with the `avx512` feature).
     fn default() -> Self {
         #[cfg(target_arch = "x86_64")]
-        let avx512 = std::arch::is_x86_feature_detected!("avx512f");
+        let avx512 = cfg!(feature = "avx512") && std::arch::is_x86_feature_detected!("avx512f");
         #[cfg(not(target_arch = "x86_64"))]
         let avx512 = false;
         Self { avx512, ..Self::portable() }
