@@ -436,7 +436,13 @@ unsafe fn kernel<L: Lanes, const NV: usize>(b: &Block, tail: usize) {
 #[inline(always)]
 unsafe fn grad_kernel<L: Lanes, const BO: usize>(b: &GradBlock) {
     #[inline(always)]
-    unsafe fn step<L: Lanes, const BO: usize>(acc: &mut [[L::V; 3]; BO], b: &GradBlock, y: usize, x: usize, mask: Option<L::Mask>) {
+    unsafe fn step<L: Lanes, const BO: usize>(
+        acc: &mut [[L::V; 3]; BO],
+        b: &GradBlock,
+        y: usize,
+        x: usize,
+        mask: Option<L::Mask>,
+    ) {
         unsafe {
             let load = |p: *const f32| match mask {
                 Some(m) => L::load_masked(p, m),
