@@ -184,7 +184,7 @@ fn forward_with(isa: Isa, x: &[f32], weight: &[f32], bias: Option<&[f32]>, geo: 
                 };
                 // SAFETY: the kernel reads `vectors` x `lanes` + 2 values
                 // from each of three rows of every channel of the padded frame
-                // starting at `input`: at most `lanes` - 2 past a row's end
+                // starting at `input`: at most `lanes` - 1 past a row's end
                 // (columns > (vectors - 1) x lanes), so the last row's
                 // overrun stays inside `FRAME_SLACK`; 9 x C x
                 // BLOCK_O packed weights, and writes `columns` values to each
